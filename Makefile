@@ -1,0 +1,35 @@
+# Two commands on a new machine: `make demo` (main job on the built-in virtual cubicle)
+# and `make test`. Each bootstraps what it needs: system OpenCL/EGL pieces, a .venv, the package.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-stamp
+OUT    ?= demo_out
+
+.PHONY: demo test bench lint setup system clean
+
+setup: system $(STAMP)
+
+system:
+	@bash tools/install_system.sh
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/rtdefocus demo -o $(OUT)
+
+test: setup
+	$(PY) -m pytest -q -ra
+
+lint: setup
+	$(VENV)/bin/ruff check rtdefocus tests tools
+
+bench: setup
+	$(PY) tools/bench.py
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info

@@ -1,0 +1,51 @@
+"""rtdefocus: real-time projector defocus and geometry compensation on two-wall corners.
+
+>>> import rtdefocus as rd
+>>> procam = rd.sim.VirtualProCam("cubicle")         # or rd.HardwareProCam(camera=0, screen=1)
+>>> calib = rd.calibrate(procam)                     # everything learnt through procam.capture()
+>>> comp = rd.Compensator(calib)                     # OpenCL when a device exists, else NumPy
+>>> frame = comp.compensate(image)                   # (Hp, Wp, 3) uint8 for the projector
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .errors import (
+    CalibrationError,
+    CalibrationFileError,
+    CaptureError,
+    DeviceError,
+    InputError,
+    RtDefocusError,
+)
+from .procam import ProCam
+
+__version__ = "0.1.0"
+
+# Heavy stages load on first use, so `import rtdefocus` stays fast and a missing
+# optional device (EGL, OpenCL) never breaks the import.
+_LAZY = {
+    "sim": ("rtdefocus.sim", None),
+    "calibrate": ("rtdefocus.calib", "calibrate"),
+    "Calibration": ("rtdefocus.calib.file", "Calibration"),
+    "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
+    "HardwareProCam": ("rtdefocus.procam", "HardwareProCam"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        module, attr = _LAZY[name]
+        mod = importlib.import_module(module)
+        value = mod if attr is None else getattr(mod, attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'rtdefocus' has no attribute {name!r}")
+
+
+__all__ = [
+    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam",
+    "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
+    "DeviceError", "InputError", "__version__",
+]

@@ -1,0 +1,162 @@
+"""OpenCL runtime: choose a device, build programs from ``kernels/*.cl`` once per context.
+
+Device choice, in order:
+
+1. ``RTDEFOCUS_DEVICE``: ``"P:D"`` (platform and device index, as ``rtdefocus info`` lists them)
+   or a case-insensitive substring of the device or platform name (``"pocl"``, ``"nvidia"``);
+2. ``PYOPENCL_CTX`` (PyOpenCL's own convention, e.g. ``"0:1"``);
+3. otherwise the first GPU, else the first device of any type.
+
+Programs are memoised per (context, file, options); PyOpenCL's disk cache (keyed on source,
+included headers, options and driver) makes rebuilds in later processes cheap.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from dataclasses import dataclass, field
+
+from ..errors import DeviceError, ProgramBuildError
+from ..resources import kernel_source, kernels_dir
+
+log = logging.getLogger(__name__)
+
+INSTALL_HINT = (
+    "Install an OpenCL driver: on Debian/Ubuntu `sudo apt-get install pocl-opencl-icd` (CPU), "
+    "or your GPU vendor's OpenCL ICD; `make test` / `make demo` install PoCL themselves when root."
+)
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - pyopencl is a hard dependency
+        raise DeviceError(f"pyopencl is not importable ({exc}); run `pip install pyopencl`.") from exc
+    return cl
+
+
+def list_devices() -> list[tuple[int, int, object, object]]:
+    """All OpenCL devices as ``(platform_index, device_index, platform, device)``.
+
+    Raises :class:`DeviceError` (naming the fix) when no platform is installed.
+    """
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:  # PLATFORM_NOT_FOUND_KHR when no ICD is installed
+        raise DeviceError(f"No OpenCL platform found ({exc}). {INSTALL_HINT}") from exc
+    out = []
+    for pi, plat in enumerate(platforms):
+        try:
+            devices = plat.get_devices()
+        except cl.Error:
+            continue
+        out.extend((pi, di, plat, dev) for di, dev in enumerate(devices))
+    if not out:
+        raise DeviceError(f"OpenCL platforms exist but expose no device. {INSTALL_HINT}")
+    return out
+
+
+def _pick(spec: str | None, source: str):
+    cl = _cl()
+    devices = list_devices()
+    names = ", ".join(f"{pi}:{di} {d.name.strip()} ({p.name.strip()})" for pi, di, p, d in devices)
+    if spec:
+        spec = spec.strip()
+        parts = spec.split(":")
+        if all(s.strip().isdigit() for s in parts) and 1 <= len(parts) <= 2:
+            pi = int(parts[0])
+            di = int(parts[1]) if len(parts) == 2 else 0
+            for p_i, d_i, _, dev in devices:
+                if (p_i, d_i) == (pi, di):
+                    return dev
+        else:
+            for _, _, plat, dev in devices:
+                if spec.lower() in dev.name.lower() or spec.lower() in plat.name.lower():
+                    return dev
+        raise DeviceError(
+            f"{source}={spec!r} matches no OpenCL device. Use 'P:D' indices or a name substring; "
+            f"available: {names}. Unset {source} to pick automatically."
+        )
+    gpus = [d for _, _, _, d in devices if d.type & cl.device_type.GPU]
+    return gpus[0] if gpus else devices[0][3]
+
+
+def choose_device():
+    """The OpenCL device selected by the environment (see module docstring)."""
+    if os.environ.get("RTDEFOCUS_DEVICE"):
+        return _pick(os.environ["RTDEFOCUS_DEVICE"], "RTDEFOCUS_DEVICE")
+    if os.environ.get("PYOPENCL_CTX"):
+        return _pick(os.environ["PYOPENCL_CTX"], "PYOPENCL_CTX")
+    return _pick(None, "")
+
+
+@dataclass
+class ClRuntime:
+    """A context and in-order queue on one device, with a per-context program cache."""
+
+    device: object
+    context: object = field(init=False)
+    queue: object = field(init=False)
+    _programs: dict = field(init=False, default_factory=dict)
+    _lock: threading.Lock = field(init=False, default_factory=threading.Lock)
+
+    def __post_init__(self):
+        cl = _cl()
+        self.context = cl.Context([self.device])
+        self.queue = cl.CommandQueue(self.context)
+
+    @property
+    def is_gpu(self) -> bool:
+        return bool(self.device.type & _cl().device_type.GPU)
+
+    @property
+    def description(self) -> str:
+        return f"{self.device.name.strip()} ({self.device.platform.name.strip()})"
+
+    def program(self, filename: str, defines: dict | None = None):
+        """Build (once) and return the program in ``kernels/<filename>`` with ``-D`` defines."""
+        options = [f"-D{k}={v}" for k, v in sorted((defines or {}).items())]
+        options += ["-I", str(kernels_dir())]
+        key = (filename, tuple(options))
+        with self._lock:
+            prg = self._programs.get(key)
+            if prg is None:
+                prg = build_program(self.context, filename, options)
+                self._programs[key] = prg
+        return prg
+
+
+def build_program(context, filename: str, options: list[str]):
+    """Build ``kernels/<filename>``; raise :class:`ProgramBuildError` with the full log on failure."""
+    cl = _cl()
+    src = kernel_source(filename)
+    try:
+        return cl.Program(context, src).build(options=options)
+    except cl.RuntimeError as exc:
+        dev = ", ".join(d.name.strip() for d in context.devices)
+        raise ProgramBuildError(filename, options, dev, str(exc)) from exc
+
+
+_runtime: ClRuntime | None = None
+_runtime_lock = threading.Lock()
+
+
+def get_runtime() -> ClRuntime:
+    """The process-wide runtime on the chosen device (created on first use)."""
+    global _runtime
+    with _runtime_lock:
+        if _runtime is None:
+            _runtime = ClRuntime(choose_device())
+            log.info("OpenCL device: %s", _runtime.description)
+        return _runtime
+
+
+def opencl_available() -> tuple[bool, str]:
+    """``(True, description)`` when a device can be used, else ``(False, reason)``."""
+    try:
+        return True, get_runtime().description
+    except DeviceError as exc:
+        return False, str(exc)
