@@ -1,0 +1,80 @@
+"""Counting, retrying, progress-reporting wrapper around ``ProCam.capture`` for calibration."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from ..errors import CaptureError, InputError
+from ..procam import ProCam, check_pattern
+
+log = logging.getLogger(__name__)
+
+# progress(stage, done, total): the CLI turns it into a progress bar; the library never prints.
+ProgressFn = Callable[[str, int, int], None]
+
+
+class Capturer:
+    """Calls ``procam.capture`` for the calibration stages.
+
+    Counts captures per stage (``counts``), checks each returned frame, retries a failed one
+    ``retries`` times and then raises :class:`CaptureError` naming the pattern and the cause.
+    """
+
+    def __init__(self, procam: ProCam, progress: ProgressFn | None = None, retries: int = 2):
+        for attr in ("projector_size", "camera_size", "capture"):
+            if not hasattr(procam, attr):
+                raise InputError(f"{type(procam).__name__} is not a ProCam: it has no {attr!r} "
+                                 "(see rtdefocus.ProCam)")
+        self.procam = procam
+        self.progress = progress
+        self.retries = retries
+        self.counts: dict[str, int] = {}
+        self.stage = "capture"
+        self._done = 0
+        self._total = 0
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def begin(self, stage: str, expected: int) -> None:
+        """Start a stage that will take about ``expected`` captures (for the progress bar)."""
+        self.stage, self._done, self._total = stage, 0, expected
+        self.counts.setdefault(stage, 0)
+        if self.progress:
+            self.progress(stage, 0, expected)
+
+    def __call__(self, pattern: np.ndarray) -> np.ndarray:
+        pattern = check_pattern(pattern, self.procam.projector_size)
+        wc, hc = self.procam.camera_size
+        last: Exception | None = None
+        for attempt in range(self.retries + 1):
+            try:
+                frame = np.asarray(self.procam.capture(pattern))
+                if frame.shape != (hc, wc, 3) or frame.dtype != np.uint8:
+                    raise CaptureError(f"camera returned {frame.shape} {frame.dtype}, expected "
+                                       f"({hc}, {wc}, 3) uint8")
+                break
+            except Exception as exc:  # a camera read can fail transiently: retry, then report
+                last = exc
+                log.warning("capture %d of stage %s failed (attempt %d): %s",
+                            self._done + 1, self.stage, attempt + 1, exc)
+        else:
+            raise CaptureError(f"capture failed {self.retries + 1} times during {self.stage} "
+                               f"(pattern {self._done + 1}): {last}. Check the camera connection "
+                               "and that nothing else is using it.") from last
+        self.counts[self.stage] = self.counts.get(self.stage, 0) + 1
+        self._done += 1
+        if self.progress:
+            self.progress(self.stage, self._done, max(self._total, self._done))
+        return frame
+
+    def mean(self, pattern: np.ndarray, n: int) -> np.ndarray:
+        """Average of ``n`` captures of the same pattern, float32 in camera code values (0..255)."""
+        acc = np.zeros((self.procam.camera_size[1], self.procam.camera_size[0], 3), np.float64)
+        for _ in range(n):
+            acc += self(pattern)
+        return (acc / n).astype(np.float32)

@@ -1,0 +1,297 @@
+"""The calibration file: one ``.npz`` with a JSON ``meta`` and plain, checked arrays.
+
+Sections (DESIGN.md §7, docs/internals.md): *geometry* (always), *radiometry* and *psf*
+(filled by the later calibration stages). Loading uses ``allow_pickle=False`` and checks every
+array's presence, shape and dtype; any defect raises one :class:`CalibrationFileError` that
+says what is wrong and what to do. Saving is atomic (temporary file + rename), so a crash
+never leaves a half-written file where a good one was.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrationFileError, InputError
+
+FORMAT_NAME = "rtdefocus-calibration"
+FORMAT_VERSION = 1
+
+# name -> (dtype, shape template); "n" planes, "Hp"/"Wp" projector size, "N" PSFs, "k" kernel,
+# "m" polygon vertices. None entries in a template accept any size.
+GEOMETRY_ARRAYS = {
+    "H_cam_from_proj": (np.float64, ("n", 3, 3)),
+    "H_proj_from_cam": (np.float64, ("n", 3, 3)),
+    "fold_proj": (np.float64, (3,)),
+    "fold_cam": (np.float64, (3,)),
+    "lit_polygon_cam": (np.float64, ("m", 2)),
+}
+RADIOMETRY_ARRAYS = {
+    "response_lut": (np.float32, (3, 256)),
+    "ambient_proj": (np.float32, ("Hp", "Wp", 3)),
+    "albedo_proj": (np.float32, ("Hp", "Wp", 3)),
+}
+PSF_ARRAYS = {
+    "psf_points_proj": (np.float32, ("N", 2)),
+    "psf_plane": (np.int32, ("N",)),
+    "psfs": (np.float32, ("N", "k", "k")),
+    "pix_idx": (np.int32, ("Hp", "Wp", 4)),
+    "pix_wts": (np.float32, ("Hp", "Wp", 4)),
+}
+SECTIONS = {"geometry": GEOMETRY_ARRAYS, "radiometry": RADIOMETRY_ARRAYS, "psf": PSF_ARRAYS}
+
+
+def _identity_lut() -> np.ndarray:
+    return np.tile(np.linspace(0.0, 1.0, 256, dtype=np.float32), (3, 1))
+
+
+@dataclass
+class Calibration:
+    """Everything learnt about one projector-camera-surface arrangement.
+
+    Geometry: ``H_cam_from_proj`` / ``H_proj_from_cam`` (n, 3, 3) float64 per plane,
+    ``fold_proj`` / ``fold_cam`` (3,) lines ``a x + b y + c = 0`` (a² + b² = 1, plane 0 where
+    negative; zeros for one plane), ``lit_polygon_cam`` (m, 2) outline lit by the projector.
+    Radiometry (optional): ``response_lut`` (3, 256) code -> linear light, ``ambient_proj``,
+    ``albedo_proj`` (Hp, Wp, 3). PSF (optional): ``psf_points_proj`` (N, 2), ``psf_plane`` (N,),
+    ``psfs`` (N, k, k) unit-sum gather kernels, ``pix_idx`` / ``pix_wts`` (Hp, Wp, 4).
+    ``meta`` holds options, statistics and provenance (JSON-serialisable).
+    """
+
+    projector_size: tuple[int, int]
+    camera_size: tuple[int, int]
+    H_cam_from_proj: np.ndarray
+    H_proj_from_cam: np.ndarray
+    fold_proj: np.ndarray
+    fold_cam: np.ndarray
+    lit_polygon_cam: np.ndarray
+    response_lut: np.ndarray | None = None
+    ambient_proj: np.ndarray | None = None
+    albedo_proj: np.ndarray | None = None
+    psf_points_proj: np.ndarray | None = None
+    psf_plane: np.ndarray | None = None
+    psfs: np.ndarray | None = None
+    pix_idx: np.ndarray | None = None
+    pix_wts: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def n_planes(self) -> int:
+        return int(self.H_cam_from_proj.shape[0])
+
+    @property
+    def has_radiometry(self) -> bool:
+        return self.response_lut is not None
+
+    @property
+    def has_psf(self) -> bool:
+        return self.psfs is not None
+
+    @property
+    def lut(self) -> np.ndarray:
+        """Projector response (3, 256) code -> linear light; identity when not measured."""
+        return self.response_lut if self.response_lut is not None else _identity_lut()
+
+    def plane_of(self, x, y) -> np.ndarray:
+        """Plane index (0 or 1) of projector pixel(s) (x, y): 0 where ``fold_proj`` is negative."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        if self.n_planes == 1:
+            return np.zeros(np.broadcast(x, y).shape, dtype=np.int8)
+        a, b, c = self.fold_proj
+        return (a * x + b * y + c >= 0).astype(np.int8)
+
+    def plane_map(self) -> np.ndarray:
+        """(Hp, Wp) int8 plane index of every projector pixel."""
+        wp, hp = self.projector_size
+        ys, xs = np.mgrid[0:hp, 0:wp]
+        return self.plane_of(xs, ys)
+
+    def display_rect(self, size: tuple[int, int], margin: float = 0.0) -> tuple[int, int, int, int]:
+        """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears: the largest
+        upright rectangle of that aspect inside the lit area, shrunk by ``margin`` (a fraction)."""
+        from .geometry import largest_inscribed_rect
+
+        w, h = size
+        if w <= 0 or h <= 0:
+            raise InputError(f"display size must be positive (width, height); got {size}")
+        return largest_inscribed_rect(self.lit_polygon_cam, w / h, self.camera_size, margin)
+
+    def kernel_at(self, x: float, y: float) -> np.ndarray:
+        """(k, k) float32 unit-sum gather kernel at projector pixel (x, y) (nearest pixel);
+        entry ``[k//2 + v, k//2 + u]`` is k_x((u, v))."""
+        if self.psfs is None:
+            raise CalibrationFileError("this calibration has no PSF section (geometry only); "
+                                       "run `rtdefocus calibrate` with the kernel stage enabled")
+        wp, hp = self.projector_size
+        xi = int(np.clip(round(float(x)), 0, wp - 1))
+        yi = int(np.clip(round(float(y)), 0, hp - 1))
+        idx, wts = self.pix_idx[yi, xi], self.pix_wts[yi, xi]
+        k = np.tensordot(wts.astype(np.float64), self.psfs[idx].astype(np.float64), axes=1)
+        s = k.sum()
+        return (k / s if s > 0 else k).astype(np.float32)
+
+    # ------------------------------------------------------------------ I/O
+    def _arrays(self) -> dict[str, np.ndarray]:
+        out = {}
+        for names in SECTIONS.values():
+            for name, (dtype, _) in names.items():
+                value = getattr(self, name)
+                if value is not None:
+                    out[name] = np.ascontiguousarray(value, dtype=dtype)
+        return out
+
+    def sections(self) -> list[str]:
+        arrays = self._arrays()
+        return [s for s, names in SECTIONS.items() if all(n in arrays for n in names)]
+
+    def validate(self) -> None:
+        """Check every array's shape and dtype against the format; raise CalibrationFileError."""
+        _check_arrays(self._arrays(), self.projector_size, "<in memory>")
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write atomically to ``path`` (a ``.npz``); returns the path written."""
+        self.validate()
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        from .. import __version__
+
+        meta = {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "rtdefocus_version": __version__,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "projector_size": list(self.projector_size),
+            "camera_size": list(self.camera_size),
+            "sections": self.sections(),
+            **{k: v for k, v in self.meta.items() if k not in ("format", "format_version")},
+        }
+        payload = {"meta": np.array(json.dumps(meta, default=_json_default))}
+        payload.update(self._arrays())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, **payload)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Calibration:
+        """Read and check a calibration file; any defect raises one CalibrationFileError."""
+        path = Path(path)
+        if not path.is_file():
+            raise CalibrationFileError(f"calibration file {str(path)!r} does not exist; create one "
+                                       "with `rtdefocus calibrate ... -o FILE.npz`")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = {k: npz[k] for k in npz.files}
+        except ValueError as exc:
+            if "pickle" in str(exc).lower():
+                raise CalibrationFileError(
+                    f"{str(path)!r} holds pickled Python objects, which rtdefocus never writes and "
+                    "will not load (unsafe); recalibrate to get a clean file") from exc
+            raise CalibrationFileError(f"{str(path)!r} is not a readable .npz ({exc}); "
+                                       "recalibrate or restore a good copy") from exc
+        except (zipfile.BadZipFile, OSError, EOFError) as exc:
+            raise CalibrationFileError(f"{str(path)!r} is truncated or not an .npz archive ({exc}); "
+                                       "recalibrate or restore a good copy") from exc
+        if "meta" not in data:
+            raise CalibrationFileError(f"{str(path)!r} is an .npz but not an rtdefocus calibration "
+                                       "(no 'meta' entry)")
+        try:
+            meta = json.loads(str(data.pop("meta")))
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise CalibrationFileError(f"{str(path)!r}: its 'meta' is not valid JSON ({exc})") from exc
+        fmt = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        if fmt != FORMAT_NAME:
+            raise CalibrationFileError(f"{str(path)!r} is not an rtdefocus calibration "
+                                       f"(format {fmt!r})")
+        version = meta.get("format_version")
+        if version != FORMAT_VERSION:
+            raise CalibrationFileError(
+                f"{str(path)!r} has calibration format version {version}, this rtdefocus reads "
+                f"version {FORMAT_VERSION}; recalibrate with this version")
+        try:
+            psize = tuple(int(v) for v in meta["projector_size"])
+            csize = tuple(int(v) for v in meta["camera_size"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CalibrationFileError(f"{str(path)!r}: meta lacks projector/camera size") from exc
+        _check_arrays(data, psize, str(path))
+        kwargs = {name: data.get(name) for names in SECTIONS.values() for name in names}
+        for name in GEOMETRY_ARRAYS:
+            kwargs[name] = kwargs[name].astype(np.float64)
+        drop = {"format", "format_version", "rtdefocus_version", "created", "projector_size",
+                "camera_size", "sections"}
+        calib = cls(projector_size=psize, camera_size=csize,
+                    meta={k: v for k, v in meta.items() if k not in drop}, **kwargs)
+        calib.meta["loaded_from"] = {"path": str(path), "created": meta.get("created"),
+                                     "rtdefocus_version": meta.get("rtdefocus_version")}
+        return calib
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
+
+
+def _check_arrays(arrays: dict, projector_size, where: str) -> None:
+    known = {n for names in SECTIONS.values() for n in names}
+    unknown = sorted(set(arrays) - known)
+    if unknown:
+        raise CalibrationFileError(f"{where}: unknown entries {unknown}; the file is foreign or "
+                                   "from another version — recalibrate")
+    wp, hp = projector_size
+    dims: dict[str, int] = {"Hp": hp, "Wp": wp}
+    for section, names in SECTIONS.items():
+        present = [n for n in names if n in arrays]
+        if section == "geometry" and len(present) < len(names) or 0 < len(present) < len(names):
+            missing = sorted(set(names) - set(present))
+            raise CalibrationFileError(f"{where}: the {section} section is incomplete, missing "
+                                       f"{missing}; recalibrate")
+        for name in present:
+            dtype, template = names[name]
+            arr = arrays[name]
+            if arr.dtype != dtype:
+                raise CalibrationFileError(f"{where}: {name} has dtype {arr.dtype}, expected "
+                                           f"{np.dtype(dtype).name}")
+            if arr.ndim != len(template):
+                raise CalibrationFileError(f"{where}: {name} has shape {arr.shape}, expected "
+                                           f"{len(template)} dimensions {template}")
+            for axis, (want, got) in enumerate(zip(template, arr.shape, strict=True)):
+                if isinstance(want, str):
+                    want = dims.setdefault(want, got)
+                if want != got:
+                    raise CalibrationFileError(
+                        f"{where}: {name} has shape {arr.shape}, expected {template} with "
+                        f"{dict(dims)} (axis {axis}: {got} != {want})")
+            if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+                raise CalibrationFileError(f"{where}: {name} contains NaN or infinite values")
+    n = dims.get("n")
+    if n not in (1, 2):
+        raise CalibrationFileError(f"{where}: {n} planes; rtdefocus handles 1 or 2")
+    if "k" in dims and dims["k"] % 2 == 0:
+        raise CalibrationFileError(f"{where}: PSF size {dims['k']} must be odd")
+    if "pix_idx" in arrays:
+        idx = arrays["pix_idx"]
+        if idx.min() < 0 or idx.max() >= dims["N"]:
+            raise CalibrationFileError(f"{where}: pix_idx refers to PSFs outside 0..{dims['N'] - 1}")
