@@ -78,7 +78,6 @@ def test_egl_offscreen_render_reads_back_expected_pixels(gl):
     from rtdefocus.gl.runtime import read_rgb
     w, h = 37, 21
     fbo = gl.simple_framebuffer((w, h), components=3)
-    fbo.use()
     fbo.clear(0.0, 0.0, 0.0)
     # Paint the top 5 rows red with a scissor: read_rgb must return them first (top-down).
     fbo.scissor = (0, h - 5, w, 5)

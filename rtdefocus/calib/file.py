@@ -181,6 +181,9 @@ class Calibration:
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
+                # mkstemp creates the file 0600; a calibration is an ordinary shareable file.
+                if hasattr(os, "fchmod"):
+                    os.fchmod(fh.fileno(), 0o644)
                 np.savez_compressed(fh, **payload)
                 fh.flush()
                 os.fsync(fh.fileno())
@@ -197,6 +200,13 @@ class Calibration:
         if not path.is_file():
             raise CalibrationFileError(f"calibration file {str(path)!r} does not exist; create one "
                                        "with `rtdefocus calibrate ... -o FILE.npz`")
+        # np.load treats anything that is not a zip or .npy as a pickle, so random bytes would
+        # be reported as "pickled objects": check the zip signature first.
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+        if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+            raise CalibrationFileError(f"{str(path)!r} is not an .npz archive (it starts with "
+                                       f"{magic!r}); recalibrate or restore a good copy")
         try:
             with np.load(path, allow_pickle=False) as npz:
                 data = {k: npz[k] for k in npz.files}

@@ -1,7 +1,7 @@
 """moderngl contexts: EGL offscreen (tests, files) and GLSL program loading from ``kernels/``.
 
 GLSL files hold both stages, ``#if defined VERTEX_SHADER`` / ``FRAGMENT_SHADER``; the loader
-inserts the ``#version``, the stage define and ``#line 2`` so driver line numbers match the file.
+inserts the ``#version``, the stage define and ``#line 1`` so driver line numbers match the file.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def load_program(ctx, filename: str, defines: dict | None = None):
     extra = "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
 
     def stage(name: str) -> str:
-        return f"#version 330 core\n#define {name} 1\n{extra}#line 2\n{src}"
+        return f"#version 330 core\n#define {name} 1\n{extra}#line 1\n{src}"
 
     try:
         return ctx.program(vertex_shader=stage("VERTEX_SHADER"),

@@ -1,0 +1,201 @@
+"""The calibration file (DESIGN.md §7): round trip, atomic writes, and one clear error for
+every kind of bad file."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from rtdefocus.calib.file import FORMAT_VERSION, Calibration
+from rtdefocus.errors import CalibrationFileError
+
+WP, HP = 41, 29          # small odd projector: the file logic does not depend on size
+
+
+def _calibration(seed: int = 0, planes: int = 2, full: bool = True) -> Calibration:
+    rng = np.random.default_rng(seed)
+    H = np.stack([np.eye(3) + 0.01 * rng.standard_normal((3, 3)) for _ in range(planes)])
+    H /= H[:, 2:3, 2:3]
+    fold = np.array([1.0, 0.0, -20.5]) if planes == 2 else np.zeros(3)
+    kw = {}
+    if full:
+        n, k = 6, 7
+        psfs = rng.random((n, k, k)).astype(np.float32)
+        psfs /= psfs.sum(axis=(1, 2), keepdims=True)
+        wts = rng.random((HP, WP, 4)).astype(np.float32)
+        kw = dict(
+            response_lut=np.tile(np.linspace(0, 1, 256, dtype=np.float32) ** 2.2, (3, 1)),
+            ambient_proj=rng.random((HP, WP, 3)).astype(np.float32) * 0.05,
+            albedo_proj=rng.random((HP, WP, 3)).astype(np.float32),
+            psf_points_proj=rng.random((n, 2)).astype(np.float32) * 30,
+            psf_plane=rng.integers(0, planes, n).astype(np.int32),
+            psfs=psfs,
+            pix_idx=rng.integers(0, n, (HP, WP, 4)).astype(np.int32),
+            pix_wts=wts / wts.sum(axis=2, keepdims=True),
+        )
+    return Calibration(projector_size=(WP, HP), camera_size=(64, 48), H_cam_from_proj=H,
+                       H_proj_from_cam=np.linalg.inv(H), fold_proj=fold, fold_cam=fold.copy(),
+                       lit_polygon_cam=rng.random((6, 2)) * 40,
+                       meta={"geometry": {"n_planes": planes, "rms_px": [0.03] * planes}}, **kw)
+
+
+ARRAYS = ["H_cam_from_proj", "H_proj_from_cam", "fold_proj", "fold_cam", "lit_polygon_cam",
+          "response_lut", "ambient_proj", "albedo_proj", "psf_points_proj", "psf_plane", "psfs",
+          "pix_idx", "pix_wts"]
+
+
+@pytest.mark.parametrize("planes,full", [(2, True), (1, False)], ids=["two-planes-all-sections",
+                                                                      "one-plane-geometry-only"])
+def test_round_trip_is_exact(tmp_path, planes, full):
+    calib = _calibration(planes=planes, full=full)
+    path = calib.save(tmp_path / "setup.npz")
+    back = Calibration.load(path)
+    assert back.projector_size == (WP, HP) and back.camera_size == (64, 48)
+    assert back.n_planes == planes and back.sections() == calib.sections()
+    for name in ARRAYS:
+        a, b = getattr(calib, name), getattr(back, name)
+        if a is None:
+            assert b is None, name
+            continue
+        assert b.dtype == np.asarray(a).dtype and b.shape == np.shape(a), name
+        np.testing.assert_array_equal(b, a, err_msg=name)
+    assert back.meta["geometry"] == calib.meta["geometry"]
+    assert back.meta["loaded_from"]["path"] == str(path)
+    if full:
+        np.testing.assert_allclose(back.kernel_at(3, 4), calib.kernel_at(3, 4), rtol=0, atol=0)
+
+
+def test_save_adds_the_suffix_and_leaves_no_temporary_files(tmp_path):
+    path = _calibration().save(tmp_path / "setup")
+    assert path.name == "setup.npz" and path.is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["setup.npz"]
+
+
+def test_failed_save_keeps_the_old_file(tmp_path, monkeypatch):
+    path = _calibration(seed=1).save(tmp_path / "setup.npz")
+    before = path.read_bytes()
+
+    def crash(fh, **arrays):
+        fh.write(b"PK\x03\x04 half a file")          # something is written, then the crash
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(np, "savez_compressed", crash)
+    with pytest.raises(OSError, match="disk full"):
+        _calibration(seed=2).save(path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["setup.npz"], "temporary file left"
+    monkeypatch.undo()
+    np.testing.assert_array_equal(Calibration.load(path).H_cam_from_proj,
+                                  _calibration(seed=1).H_cam_from_proj)
+
+
+# --------------------------------------------------------------------------- bad files
+def _rewrite(src, dst, *, meta_update=None, drop=(), **replace):
+    """Copy a saved calibration with entries replaced/dropped (written with plain np.savez)."""
+    with np.load(src, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    if meta_update is not None:
+        m = json.loads(str(data["meta"]))
+        m.update(meta_update)
+        data["meta"] = np.array(json.dumps(m))
+    for k in drop:
+        data.pop(k)
+    data.update(replace)
+    np.savez(dst, **data)
+    return dst
+
+
+@pytest.fixture()
+def good(tmp_path):
+    return _calibration().save(tmp_path / "good.npz")
+
+
+def _bad_files(good, tmp):
+    """name -> (path, regex the one error message must match)."""
+    raw = good.read_bytes()
+    out = {}
+    p = tmp / "truncated.npz"
+    p.write_bytes(raw[: len(raw) // 2])
+    out["truncated"] = (p, "truncated or not an .npz")
+    p = tmp / "random.npz"
+    p.write_bytes(np.random.default_rng(0).bytes(4096))
+    out["random-bytes"] = (p, "not an .npz archive")
+    p = tmp / "empty.npz"
+    p.write_bytes(b"")
+    out["empty"] = (p, "not an .npz archive")
+    p = tmp / "foreign.npz"
+    np.savez(p, weights=np.zeros(3))
+    out["foreign-no-meta"] = (p, "not an rtdefocus calibration")
+    out["foreign-format"] = (_rewrite(good, tmp / "fmt.npz", meta_update={"format": "something-else"}),
+                             "not an rtdefocus calibration")
+    newer = {"format_version": FORMAT_VERSION + 1}
+    out["wrong-version"] = (_rewrite(good, tmp / "ver.npz", meta_update=newer),
+                            f"version {FORMAT_VERSION + 1}.*recalibrate")
+    out["wrong-shape"] = (_rewrite(good, tmp / "shape.npz", H_cam_from_proj=np.zeros((2, 3, 4))),
+                          r"H_cam_from_proj has shape \(2, 3, 4\)")
+    out["wrong-dtype"] = (_rewrite(good, tmp / "dtype.npz", pix_idx=np.zeros((HP, WP, 4), np.float32)),
+                          "pix_idx has dtype float32, expected int32")
+    out["projector-size-mismatch"] = (
+        _rewrite(good, tmp / "size.npz", ambient_proj=np.zeros((HP + 1, WP, 3), np.float32)),
+        "ambient_proj has shape")
+    out["missing-geometry"] = (_rewrite(good, tmp / "miss.npz", drop=["fold_cam"]),
+                               r"geometry section is incomplete, missing \['fold_cam'\]")
+    out["unknown-entry"] = (_rewrite(good, tmp / "unk.npz", roration=np.eye(3)),
+                            r"unknown entries \['roration'\]")
+    out["nan"] = (_rewrite(good, tmp / "nan.npz", fold_proj=np.array([np.nan, 0.0, 1.0])),
+                  "fold_proj contains NaN")
+    out["three-planes"] = (_rewrite(good, tmp / "three.npz", H_cam_from_proj=np.tile(np.eye(3), (3, 1, 1)),
+                                    H_proj_from_cam=np.tile(np.eye(3), (3, 1, 1))), "3 planes")
+    out["bad-meta-json"] = (_rewrite(good, tmp / "json.npz", meta=np.array("{oops")),
+                            "not valid JSON")
+    p = tmp / "pickle.npz"
+    with np.load(good, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    data["psf_plane"] = np.array([{"evil": "object"}, 1], dtype=object)
+    np.savez(p, **data)                       # np.savez pickles object arrays
+    out["pickle-carrying"] = (p, "pickled Python objects")
+    out["missing"] = (tmp / "nope.npz", "does not exist")
+    return out
+
+
+BAD = ["truncated", "random-bytes", "empty", "foreign-no-meta", "foreign-format", "wrong-version",
+       "wrong-shape", "wrong-dtype", "projector-size-mismatch", "missing-geometry", "unknown-entry",
+       "nan", "three-planes", "bad-meta-json", "pickle-carrying", "missing"]
+
+
+@pytest.mark.parametrize("kind", BAD)
+def test_bad_file_gives_one_clear_error(good, tmp_path, kind):
+    path, pattern = _bad_files(good, tmp_path)[kind]
+    with pytest.raises(CalibrationFileError, match=pattern) as info:
+        Calibration.load(path)
+    msg = str(info.value)
+    assert str(path.name) in msg, "the message names the file"
+    # CalibrationFileError is also a ValueError, so generic handlers still catch it
+    assert isinstance(info.value, ValueError)
+
+
+def test_pickle_is_never_executed(good, tmp_path):
+    class Boom:
+        def __reduce__(self):
+            return (os.system, ("touch " + str(tmp_path / "pwned"),))
+
+    with np.load(good, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    arr = np.empty(1, dtype=object)
+    arr[0] = Boom()
+    data["psfs"] = arr
+    np.savez(tmp_path / "evil.npz", **data)
+    with pytest.raises(CalibrationFileError, match="pickled"):
+        Calibration.load(tmp_path / "evil.npz")
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_validate_rejects_bad_arrays_before_writing(tmp_path):
+    calib = _calibration()
+    calib.H_cam_from_proj = np.zeros((2, 3, 4))
+    with pytest.raises(CalibrationFileError, match="H_cam_from_proj has shape"):
+        calib.save(tmp_path / "x.npz")
+    assert not any(tmp_path.iterdir())
