@@ -131,10 +131,22 @@ class ClRuntime:
 
 def build_program(context, filename: str, options: list[str]):
     """Build ``kernels/<filename>``; raise :class:`ProgramBuildError` with the full log on failure."""
+    import warnings
+
     cl = _cl()
     src = kernel_source(filename)
     try:
-        return cl.Program(context, src).build(options=options)
+        # PoCL prints harmless notes (e.g. about unrolling); PyOpenCL turns any compiler output
+        # into a warning. Keep it in the debug log instead of on the user's terminal.
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", cl.CompilerWarning)
+            prg = cl.Program(context, src).build(options=options)
+        for w in caught:
+            if issubclass(w.category, cl.CompilerWarning):
+                log.debug("OpenCL compiler output for %s %s: %s", filename, options, w.message)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return prg
     except cl.RuntimeError as exc:
         dev = ", ".join(d.name.strip() for d in context.devices)
         raise ProgramBuildError(filename, options, dev, str(exc)) from exc

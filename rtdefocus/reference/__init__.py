@@ -6,5 +6,7 @@ from .blur import (
     blur_forward,
     blur_forward_filter2d,
 )
+from .warp import warp_cv2, warp_maps
 
-__all__ = ["blur_adjoint", "blur_adjoint_filter2d", "blur_forward", "blur_forward_filter2d"]
+__all__ = ["blur_adjoint", "blur_adjoint_filter2d", "blur_forward", "blur_forward_filter2d",
+           "warp_cv2", "warp_maps"]

@@ -1,0 +1,258 @@
+"""The spatially varying blur F and its adjoint: OpenCL (both kernel shapes) against NumPy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import TOLERANCES, assert_close
+
+from rtdefocus.errors import InputError
+from rtdefocus.reference.blur import (
+    blur_adjoint,
+    blur_adjoint_filter2d,
+    blur_forward,
+    blur_forward_filter2d,
+    synthetic_field,
+)
+
+VARIANTS = pytest.mark.parametrize("variant", ["cpu", "gpu"], ids=["cpu", "gpu"])
+
+
+def random_field(h, w, k, n, seed, zero_slots=True):
+    """Asymmetric random PSFs and random per-pixel indices/weights (some slots unused)."""
+    rng = np.random.default_rng(seed)
+    psfs = rng.random((n, k, k)).astype(np.float32) ** 3      # lopsided, not symmetric
+    psfs /= psfs.sum(axis=(1, 2), keepdims=True)
+    idx = rng.integers(0, n, (h, w, 4)).astype(np.int32)
+    wts = rng.random((h, w, 4)).astype(np.float32)
+    if zero_slots:   # unused slots: weight 0, index 0, as the contract has it
+        unused = rng.random((h, w, 4)) < 0.3
+        unused[..., 0] = False                            # every pixel keeps a kernel
+        wts[unused], idx[unused] = 0.0, 0
+    wts /= wts.sum(-1, keepdims=True)
+    return psfs, idx, wts
+
+
+# (name, H, W, k, N or None for the bilinear synthetic field, C)
+CASES = [
+    ("238x318-k7-random-C3", 238, 318, 7, 7, 3),        # many PSFs per chunk: several groups
+    ("238x318-r5-bilinear-C3", 238, 318, 11, None, 3),  # the usual case: one group per chunk
+    ("45x61-k11-random-C1", 45, 61, 11, 5, 1),          # not a multiple of chunk or rows
+    ("37x50-k19-random-C3", 37, 50, 19, 4, 3),          # radius 9 > 8: wider row segments
+]
+
+
+@pytest.fixture(scope="module", params=CASES, ids=[c[0] for c in CASES])
+def case(request):
+    name, h, w, k, n, c = request.param
+    if n is None:
+        psfs, idx, wts = synthetic_field(w, h, k // 2)
+    else:
+        psfs, idx, wts = random_field(h, w, k, n, seed=k * 1000 + h)
+    rng = np.random.default_rng(h + w)
+    img = rng.random((c, h, w)).astype(np.float32)
+    return {"psfs": psfs, "idx": idx, "wts": wts, "img": img,
+            "fwd": blur_forward(img, psfs, idx, wts, np.float64),
+            "adj": blur_adjoint(img, psfs, idx, wts, np.float64)}
+
+
+_BLURS: dict = {}
+
+
+def make_blur(runtime, psfs, idx, wts, channels, variant):
+    from rtdefocus.cl.blur import ClBlur
+    return ClBlur(runtime, psfs, idx, wts, channels=channels, variant=variant)
+
+
+def cached_blur(runtime, case, variant):
+    key = (id(case), variant)
+    if key not in _BLURS:
+        _BLURS[key] = make_blur(runtime, case["psfs"], case["idx"], case["wts"],
+                                case["img"].shape[0], variant)
+    return _BLURS[key]
+
+
+@VARIANTS
+def test_forward_matches_reference(cl_runtime, case, variant):
+    blur = cached_blur(cl_runtime, case, variant)
+    assert blur.variant == variant
+    assert_close(blur.forward_host(case["img"]), case["fwd"], TOLERANCES["float32"], "forward")
+
+
+@VARIANTS
+def test_adjoint_matches_reference(cl_runtime, case, variant):
+    blur = cached_blur(cl_runtime, case, variant)
+    assert_close(blur.adjoint_host(case["img"]), case["adj"], TOLERANCES["float32"], "adjoint")
+
+
+def _adjoint_gap(fx, y, x, fty):
+    """|<F x, y> - <x, F^T y>| relative to the Cauchy-Schwarz scale ||F x|| ||y||."""
+    lhs = float(np.sum(np.asarray(fx, np.float64) * y))
+    rhs = float(np.sum(np.asarray(fty, np.float64) * x))
+    return abs(lhs - rhs) / (np.linalg.norm(fx) * np.linalg.norm(y))
+
+
+def _border_and_fold_masks(h, w, r):
+    """Random data everywhere, and random data only within reach of the borders and the fold
+    (the column w // 2 where the synthetic field's bands meet), where a wrong halo would show."""
+    band = np.zeros((h, w), bool)
+    band[:2 * r], band[-2 * r:], band[:, :2 * r], band[:, -2 * r:] = True, True, True, True
+    band[:, w // 2 - 2 * r:w // 2 + 2 * r] = True
+    return [np.ones((h, w), bool), band]
+
+
+@pytest.mark.parametrize("field", ["random", "bilinear"])
+def test_adjoint_identity_reference_float64(field):
+    h, w, k = 41, 53, 7
+    psfs, idx, wts = (random_field(h, w, k, 6, seed=3) if field == "random"
+                      else synthetic_field(w, h, k // 2))
+    rng = np.random.default_rng(7)
+    for mask in _border_and_fold_masks(h, w, k // 2):
+        x = rng.standard_normal((3, h, w)) * mask
+        y = rng.standard_normal((3, h, w)) * mask
+        gap = _adjoint_gap(blur_forward(x, psfs, idx, wts, np.float64), y,
+                           x, blur_adjoint(y, psfs, idx, wts, np.float64))
+        assert gap < 1e-12, f"float64 reference is not an exact adjoint pair: gap {gap:.3g}"
+
+
+@VARIANTS
+def test_adjoint_identity_on_device(cl_runtime, variant):
+    h, w, k = 97, 131, 11
+    psfs, idx, wts = synthetic_field(w, h, k // 2)
+    blur = make_blur(cl_runtime, psfs, idx, wts, 3, variant)
+    rng = np.random.default_rng(11)
+    for mask in _border_and_fold_masks(h, w, k // 2):
+        x = (rng.standard_normal((3, h, w)) * mask).astype(np.float32)
+        y = (rng.standard_normal((3, h, w)) * mask).astype(np.float32)
+        gap = _adjoint_gap(blur.forward_host(x), y, x, blur.adjoint_host(y))
+        assert gap <= TOLERANCES["adjoint_identity"], f"<Fx,y> != <x,F^T y>: gap {gap:.3g}"
+
+
+def test_filter2d_form_equals_gather_form():
+    h, w, k = 47, 66, 9
+    psfs, idx, wts = random_field(h, w, k, 5, seed=5)
+    img = np.random.default_rng(5).random((3, h, w)).astype(np.float32)
+    assert_close(blur_forward_filter2d(img, psfs, idx, wts),
+                 blur_forward(img, psfs, idx, wts, np.float64), 1e-5, "filter2D forward")
+    assert_close(blur_adjoint_filter2d(img, psfs, idx, wts),
+                 blur_adjoint(img, psfs, idx, wts, np.float64), 1e-5, "filter2D adjoint")
+
+
+def test_reference_orientation_is_image_of_a_dot():
+    """psf[k//2 + v, k//2 + u] = k(u, v): a lit pixel z lights z + (u, v); the adjoint maps back."""
+    h, w, k = 21, 23, 7
+    psf = np.zeros((1, k, k), np.float32)
+    psf[0, k // 2 + 1, k // 2 + 2] = 1.0                          # (u, v) = (2, 1)
+    idx = np.zeros((h, w, 4), np.int32)
+    wts = np.zeros((h, w, 4), np.float32)
+    wts[..., 0] = 1.0
+    dot = np.zeros((h, w), np.float32)
+    dot[10, 8] = 1.0
+    assert np.argwhere(blur_forward(dot, psf, idx, wts)).tolist() == [[11, 10]]
+    assert np.argwhere(blur_adjoint(dot, psf, idx, wts)).tolist() == [[9, 6]]
+
+
+@VARIANTS
+def test_delta_psfs_give_identity(cl_runtime, variant):
+    h, w, k = 39, 70, 7
+    _, idx, wts = random_field(h, w, k, 3, seed=9)        # weights sum to 1 per pixel
+    psfs = np.zeros((3, k, k), np.float32)
+    psfs[:, k // 2, k // 2] = 1.0
+    blur = make_blur(cl_runtime, psfs, idx, wts, 3, variant)
+    img = np.random.default_rng(9).random((3, h, w)).astype(np.float32)
+    assert_close(blur.forward_host(img), img, TOLERANCES["float32"], "forward, delta PSFs")
+    assert_close(blur.adjoint_host(img), img, TOLERANCES["float32"], "adjoint, delta PSFs")
+
+
+@VARIANTS
+def test_direction_on_device(cl_runtime, variant):
+    h, w, k = 21, 35, 7
+    psf = np.zeros((1, k, k), np.float32)
+    psf[0, k // 2 + 1, k // 2 + 2] = 1.0
+    idx = np.zeros((h, w, 4), np.int32)
+    wts = np.zeros((h, w, 4), np.float32)
+    wts[..., 0] = 1.0
+    blur = make_blur(cl_runtime, psf, idx, wts, 1, variant)
+    dot = np.zeros((h, w), np.float32)
+    dot[10, 17] = 1.0
+    assert np.argwhere(blur.forward_host(dot)).tolist() == [[11, 19]]
+    assert np.argwhere(blur.adjoint_host(dot)).tolist() == [[9, 15]]
+
+
+@VARIANTS
+@pytest.mark.timeout(60)
+def test_nan_stays_local(cl_runtime, variant):
+    h, w, k = 40, 57, 7
+    r = k // 2
+    psfs, idx, wts = synthetic_field(w, h, r)
+    blur = make_blur(cl_runtime, psfs, idx, wts, 3, variant)
+    img = np.random.default_rng(2).random((3, h, w)).astype(np.float32)
+    img[1, 20, 30] = np.nan
+    box = np.zeros((3, h, w), bool)
+    box[1, 20 - r:20 + r + 1, 30 - r:30 + r + 1] = True   # every pixel the NaN can reach
+    for name, op, ref in (("forward", blur.forward_host, blur_forward),
+                          ("adjoint", blur.adjoint_host, blur_adjoint)):
+        out = op(img)
+        expected = ref(img, psfs, idx, wts, np.float64)
+        assert np.array_equal(np.isnan(out), np.isnan(expected)), f"{name}: NaN pattern differs"
+        assert not np.isnan(out[~box]).any(), f"{name}: NaN spread beyond the kernel radius"
+        assert_close(out[~box], expected[~box], TOLERANCES["float32"], f"{name} outside the NaN")
+
+
+@VARIANTS
+@pytest.mark.timeout(60)
+def test_zero_weights_give_zero(cl_runtime, variant):
+    h, w, k = 36, 80, 7
+    r = k // 2
+    psfs, idx, wts = random_field(h, w, k, 4, seed=4)
+    wts[:, :40] = 0.0                                      # left half: no kernel at all
+    blur = make_blur(cl_runtime, psfs, idx, wts, 3, variant)
+    img = np.random.default_rng(4).random((3, h, w)).astype(np.float32)
+    fwd, adj = blur.forward_host(img), blur.adjoint_host(img)
+    # F P at x depends on k_x only; F^T r at y on k_{y+u}, |u| <= r
+    assert np.all(fwd[:, :, :40] == 0.0)
+    assert np.all(adj[:, :, :40 - r] == 0.0)
+    assert_close(fwd, blur_forward(img, psfs, idx, wts, np.float64), TOLERANCES["float32"])
+    assert_close(adj, blur_adjoint(img, psfs, idx, wts, np.float64), TOLERANCES["float32"])
+    wts[:] = 0.0
+    none = make_blur(cl_runtime, psfs, idx, wts, 3, variant)
+    assert np.all(none.forward_host(img) == 0.0) and np.all(none.adjoint_host(img) == 0.0)
+
+
+def test_device_arrays_are_checked(cl_runtime):
+    import pyopencl.array as cla
+    psfs, idx, wts = synthetic_field(40, 30, 2)
+    blur = make_blur(cl_runtime, psfs, idx, wts, 3, None)
+    q = cl_runtime.queue
+    good = cla.zeros(q, (3, 30, 40), np.float32)
+    with pytest.raises(InputError, match=r"\(3, 30, 40\)"):
+        blur.forward(cla.zeros(q, (1, 30, 40), np.float32), good)
+    with pytest.raises(InputError, match="float32"):
+        blur.adjoint(cla.zeros(q, (3, 30, 40), np.float64), good)
+    with pytest.raises(InputError, match="in place"):
+        blur.forward(good, good)
+    with pytest.raises(InputError, match=r"\(C, H, W\)"):
+        blur.forward_host(np.zeros((30, 40), np.float32))   # C = 3 needs planes
+    event = blur.forward(cla.zeros(q, (3, 30, 40), np.float32) + 1, good)
+    event.wait()
+    assert np.allclose(good.get()[:, 5:-5, 5:-5], 1.0, atol=1e-5)  # unit-sum kernels keep 1
+
+
+@pytest.mark.parametrize("bad, match", [
+    ({"psfs": np.ones((2, 4, 4), np.float32)}, "k odd"),
+    ({"idx": np.full((30, 40, 4), 99, np.int32)}, r"\[0, 18\)"),
+    ({"wts": np.ones((30, 40, 3), np.float32)}, r"\(H, W, 4\)"),
+    ({"idx": np.zeros((30, 40, 4), np.float32)}, "integer"),
+], ids=["even-k", "index-range", "wts-shape", "idx-dtype"])
+def test_bad_fields_are_rejected(bad, match):
+    psfs, idx, wts = synthetic_field(40, 30, 2)
+    args = {"psfs": psfs, "idx": idx, "wts": wts, **bad}
+    img = np.zeros((3, 30, 40), np.float32)
+    with pytest.raises(InputError, match=match):
+        blur_forward(img, args["psfs"], args["idx"], args["wts"])
+
+
+def test_field_must_cover_the_image():
+    psfs, idx, wts = synthetic_field(40, 30, 2)
+    with pytest.raises(InputError, match="40x30"):
+        blur_adjoint(np.zeros((3, 31, 40), np.float32), psfs, idx, wts)
