@@ -1,0 +1,263 @@
+/* metric.cl - the perceptual distance of the solve (paper Eq. 4, DESIGN.md §3) on the device.
+ * NumPy twin: rtdefocus/reference/metric.py.
+ *
+ *   e      = F P - I                                  planar RGB residual
+ *   Q e    = A0 e + A1 Lap(e)                         A0 = M^T diag(w1,w2,w2) M, A1 = M^T diag(w3,w4,w4) M
+ *   Lap(e) = sum over in-frame 4-neighbours j of (e(x) - e(j))   (= grad^T grad, Neumann border)
+ *   d      = sum_x <e(x), (Q e)(x)>                   (= Eq. 4: w1 |e_Y|^2 + w2 |e_C|^2 + w3 |grad e_Y|^2
+ *                                                         + w4 |grad e_C|^2, spatial sign corrected)
+ * The gradient of d is 2 F^T (Q e): these kernels produce the "pre-adjoint field" q = Q e and
+ * the first stage of the reductions the line search needs (solver.cl:reduce_partials does the
+ * second stage).
+ *
+ *   metric_residual(fp, target, q, partials, H, W)              e = fp - target; writes q
+ *   metric_update(fp, fs, t, target, fp_out, q, partials, H, W) fp_out = fp + t fs, e = fp_out - target;
+ *                                                               writes fp_out and q
+ *   metric_curvature(fs, v, with_dot, partials, H, W)           e = fs; writes nothing but partials
+ *   partials[0 * n_groups + g] = work-group g's share of <e, Q e>
+ *   partials[1 * n_groups + g] = its share of <e, v> (metric_curvature with with_dot != 0; else 0)
+ *
+ * Images: planar float32 (3, H, W), row-major, linear light, channel stride H*W; t float; H, W int.
+ * n_groups = number of work-groups, numbered row-major. Two variants of the same maths (-D):
+ *
+ * VARIANT_GPU - one work-item per pixel. Global size (ceil(W/LX)*LX, ceil(H/LY)*LY), local (LX, LY).
+ * VARIANT_CPU - one work-item per 16-pixel row chunk, explicit float16 vectors (the shape a CPU's
+ *   SIMD units want). Global size (ceil(ceil(W/16)/LX)*LX, ceil(H/LY)*LY), local (LX, LY).
+ *
+ * Constants (-D): A0_rc, A1_rc for r, c in 0..2 (float literals), HAS_SPATIAL (0: no Laplacian,
+ * e.g. the per-channel RGB metric), VARIANT_GPU or VARIANT_CPU, LX, LY (LX*LY a power of two).
+ */
+#include "common.h"
+
+#if !defined(LX) || !defined(LY) || !defined(HAS_SPATIAL)
+#error "metric.cl needs -D LX, LY, HAS_SPATIAL, A0_rc/A1_rc and VARIANT_CPU or VARIANT_GPU"
+#endif
+#define WG (LX * LY)
+
+#define MODE_RESIDUAL 0   /* e = a - c          */
+#define MODE_UPDATE 1     /* e = (a + t b) - c  */
+#define MODE_PLAIN 2      /* e = a              */
+
+/* Tree sum of a float2 over the work-group; the total is valid in work-item 0 only. */
+inline float2 wg_sum2(__local float2 *scratch, float2 v)
+{
+    const int lid = get_local_id(1) * LX + get_local_id(0);
+    scratch[lid] = v;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int s = WG / 2; s > 0; s >>= 1) {
+        if (lid < s) scratch[lid] += scratch[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    return scratch[0];
+}
+
+inline void store_partials(__global float *partials, const float2 total)
+{
+    if (get_local_id(0) == 0 && get_local_id(1) == 0) {
+        const int ng = get_num_groups(0) * get_num_groups(1);
+        const int g = get_group_id(1) * get_num_groups(0) + get_group_id(0);
+        partials[g] = total.x;
+        partials[ng + g] = total.y;
+    }
+}
+
+#if defined(VARIANT_GPU)
+/* ------------------------------------------------------------------ one work-item per pixel */
+
+/* The residual at pixel i, all three channels; `mode` is a literal at every call site. */
+inline float3 e_at(const int mode, __global const float *restrict a, __global const float *restrict b,
+                   const float t, __global const float *restrict c, const size_t i, const size_t hw)
+{
+    float3 v = (float3)(a[i], a[i + hw], a[i + 2 * hw]);
+    if (mode == MODE_UPDATE) v += t * (float3)(b[i], b[i + hw], b[i + 2 * hw]);
+    if (mode != MODE_PLAIN) v -= (float3)(c[i], c[i + hw], c[i + 2 * hw]);
+    return v;
+}
+
+#define MAT3(A, v) ((float3)(A##_00 * (v).x + A##_01 * (v).y + A##_02 * (v).z, \
+                             A##_10 * (v).x + A##_11 * (v).y + A##_12 * (v).z, \
+                             A##_20 * (v).x + A##_21 * (v).y + A##_22 * (v).z))
+
+/* Q e at (x, y) from the residual there (`e`) and at its in-frame neighbours. */
+inline float3 q_at(const int mode, __global const float *restrict a, __global const float *restrict b,
+                   const float t, __global const float *restrict c, const int x, const int y,
+                   const int H, const int W, const float3 e)
+{
+    float3 q = MAT3(A0, e);
+#if HAS_SPATIAL
+    const size_t hw = (size_t)H * W, i = IDX((size_t)y, x, W);
+    float3 lap = (float3)(0.0f);
+    if (x > 0) lap += e - e_at(mode, a, b, t, c, i - 1, hw);
+    if (x < W - 1) lap += e - e_at(mode, a, b, t, c, i + 1, hw);
+    if (y > 0) lap += e - e_at(mode, a, b, t, c, i - W, hw);
+    if (y < H - 1) lap += e - e_at(mode, a, b, t, c, i + W, hw);
+    q += MAT3(A1, lap);
+#endif
+    return q;
+}
+
+inline void store3(__global float *restrict dst, const size_t i, const size_t hw, const float3 v)
+{
+    dst[i] = v.x;
+    dst[i + hw] = v.y;
+    dst[i + 2 * hw] = v.z;
+}
+
+/* One pixel of any mode: returns (<e, Qe>, <e, v>) and writes q / fp_out when given. */
+inline float2 metric_pixel(const int mode, __global const float *restrict a,
+                           __global const float *restrict b, const float t,
+                           __global const float *restrict c, __global float *restrict a_out,
+                           __global float *restrict q, __global const float *restrict v,
+                           const int with_dot, const int H, const int W)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    float2 acc = (float2)(0.0f);
+    if (x < W && y < H) {
+        const size_t hw = (size_t)H * W, i = IDX((size_t)y, x, W);
+        const float3 e = e_at(mode, a, b, t, c, i, hw);
+        const float3 qv = q_at(mode, a, b, t, c, x, y, H, W, e);
+        if (mode == MODE_UPDATE)
+            store3(a_out, i, hw, (float3)(a[i], a[i + hw], a[i + 2 * hw])
+                                 + t * (float3)(b[i], b[i + hw], b[i + 2 * hw]));
+        if (mode != MODE_PLAIN) store3(q, i, hw, qv);
+        acc.x = dot(e, qv);
+        if (with_dot) acc.y = dot(e, (float3)(v[i], v[i + hw], v[i + 2 * hw]));
+    }
+    return acc;
+}
+
+#else
+/* ------------------------------------------------------------------ 16-pixel row chunks (CPU) */
+#if !defined(VARIANT_CPU)
+#error "metric.cl needs -D VARIANT_CPU or -D VARIANT_GPU"
+#endif
+
+/* Unaligned 16-float loads/stores: a vector type with 4-byte alignment makes LLVM emit one
+ * unaligned vector move (PoCL's vload16 assembles it from 8-byte pieces). */
+typedef float16 __attribute__((aligned(4))) float16_u;
+#define GLD16(p) (*(__global const float16_u *)(p))
+#define GST16(p, v) (*(__global float16_u *)(p) = (v))
+
+/* p[row + xs .. row + xs + 15], 0 outside [0, W). */
+inline float16 ld16(__global const float *restrict p, const size_t row, const int xs, const int W)
+{
+    if (xs >= 0 && xs + 16 <= W) return GLD16(p + row + xs);
+    float tmp[16];
+    for (int j = 0; j < 16; ++j) tmp[j] = (xs + j >= 0 && xs + j < W) ? p[row + xs + j] : 0.0f;
+    return vload16(0, tmp);
+}
+
+inline void st16(__global float *restrict p, const size_t row, const int xs, const int W, const float16 v)
+{
+    if (xs + 16 <= W) { GST16(p + row + xs, v); return; }
+    float tmp[16];
+    vstore16(v, 0, tmp);
+    for (int j = 0; j < 16 && xs + j < W; ++j) p[row + xs + j] = tmp[j];
+}
+
+inline float16 e16(const int mode, __global const float *restrict a, __global const float *restrict b,
+                   const float t, __global const float *restrict c, const size_t row, const int xs,
+                   const int W)
+{
+    float16 v = ld16(a, row, xs, W);
+    if (mode == MODE_UPDATE) v += t * ld16(b, row, xs, W);
+    if (mode != MODE_PLAIN) v -= ld16(c, row, xs, W);
+    return v;
+}
+
+inline float hsum16(const float16 v)
+{
+    const float8 a = v.lo + v.hi;
+    const float4 b = a.lo + a.hi;
+    const float2 c = b.lo + b.hi;
+    return c.x + c.y;
+}
+
+#define MATROW(A, r, v0, v1, v2) (A##_##r##0 * (v0) + A##_##r##1 * (v1) + A##_##r##2 * (v2))
+
+inline float2 metric_pixel(const int mode, __global const float *restrict a,
+                           __global const float *restrict b, const float t,
+                           __global const float *restrict c, __global float *restrict a_out,
+                           __global float *restrict q, __global const float *restrict v,
+                           const int with_dot, const int H, const int W)
+{
+    const int x0 = get_global_id(0) * 16, y = get_global_id(1);
+    float2 acc = (float2)(0.0f);
+    if (x0 >= W || y >= H) return acc;
+    const size_t hw = (size_t)H * W, row = (size_t)y * W;
+    const int16 xi = x0 + (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const int16 inside = xi < W;
+    float16 e[3], lap[3];
+    for (int k = 0; k < 3; ++k) {
+        const size_t r = k * hw + row;
+        e[k] = e16(mode, a, b, t, c, r, x0, W);
+#if HAS_SPATIAL
+        /* A missing neighbour (frame border) contributes nothing: stand in the pixel itself. */
+        const float16 l = select(e[k], e16(mode, a, b, t, c, r, x0 - 1, W), xi - 1 >= 0);
+        const float16 rr = select(e[k], e16(mode, a, b, t, c, r, x0 + 1, W), xi + 1 < W);
+        const float16 u = y > 0 ? e16(mode, a, b, t, c, r - W, x0, W) : e[k];
+        const float16 d = y < H - 1 ? e16(mode, a, b, t, c, r + W, x0, W) : e[k];
+        lap[k] = 4.0f * e[k] - l - rr - u - d;
+#else
+        lap[k] = (float16)(0.0f);
+#endif
+    }
+    float16 dsum = (float16)(0.0f);
+    for (int k = 0; k < 3; ++k) {
+        float16 qk;
+        if (k == 0) qk = MATROW(A0, 0, e[0], e[1], e[2]);
+        else if (k == 1) qk = MATROW(A0, 1, e[0], e[1], e[2]);
+        else qk = MATROW(A0, 2, e[0], e[1], e[2]);
+#if HAS_SPATIAL
+        if (k == 0) qk += MATROW(A1, 0, lap[0], lap[1], lap[2]);
+        else if (k == 1) qk += MATROW(A1, 1, lap[0], lap[1], lap[2]);
+        else qk += MATROW(A1, 2, lap[0], lap[1], lap[2]);
+#endif
+        const size_t r = k * hw + row;
+        if (mode == MODE_UPDATE) st16(a_out, r, x0, W, ld16(a, r, x0, W) + t * ld16(b, r, x0, W));
+        if (mode != MODE_PLAIN) st16(q, r, x0, W, qk);
+        dsum += e[k] * qk;
+        if (with_dot) acc.y += hsum16(select((float16)(0.0f), e[k] * ld16(v, r, x0, W), inside));
+    }
+    acc.x = hsum16(select((float16)(0.0f), dsum, inside));
+    return acc;
+}
+#endif
+
+/* q = Q (fp - target); partials[0] += <e, q>.
+ * fp, target: float32 (3, H, W) in; q: float32 (3, H, W) out. */
+__kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
+void metric_residual(__global const float *restrict fp, __global const float *restrict target,
+                     __global float *restrict q, __global float *restrict partials,
+                     const int H, const int W)
+{
+    __local float2 scratch[WG];
+    const float2 acc = metric_pixel(MODE_RESIDUAL, fp, fp, 0.0f, target, q, q, fp, 0, H, W);
+    store_partials(partials, wg_sum2(scratch, acc));
+}
+
+/* The line-search update of the blurred image and the new field in one pass:
+ * fp_out = fp + t fs;  q = Q (fp_out - target);  partials[0] += <e, q>.
+ * fp, fs, target: float32 (3, H, W) in; fp_out (distinct from fp), q: float32 (3, H, W) out. */
+__kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
+void metric_update(__global const float *restrict fp, __global const float *restrict fs, const float t,
+                   __global const float *restrict target, __global float *restrict fp_out,
+                   __global float *restrict q, __global float *restrict partials,
+                   const int H, const int W)
+{
+    __local float2 scratch[WG];
+    const float2 acc = metric_pixel(MODE_UPDATE, fp, fs, t, target, fp_out, q, fp, 0, H, W);
+    store_partials(partials, wg_sum2(scratch, acc));
+}
+
+/* The curvature of d along a direction s, from fs = F s: partials[0] += <fs, Q fs>; with
+ * with_dot != 0 also partials[1] += <fs, v> (v: float32 (3, H, W), e.g. the field q). */
+__kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
+void metric_curvature(__global const float *restrict fs, __global const float *restrict v,
+                      const int with_dot, __global float *restrict partials, const int H, const int W)
+{
+    __local float2 scratch[WG];
+    const float2 acc = metric_pixel(MODE_PLAIN, fs, fs, 0.0f, fs, partials, partials, v,
+                                    with_dot, H, W);
+    store_partials(partials, wg_sum2(scratch, acc));
+}

@@ -1,0 +1,252 @@
+/* solver.cl - the update steps of the compensation solve (DESIGN.md §3) and the reductions of
+ * its exact line search; NumPy twin: rtdefocus/compensate/solvers.py (NumpyOps).
+ *
+ *   min_P d(F P, I)  subject to 0 <= P <= 1,   grad d = 2 F^T q,  q = Q (F P - I)  (metric.cl)
+ *
+ *   pg_direction   s = -g on the free set (0 where P sits at a bound and -g points outward)
+ *   pg_step        P <- clamp(P + t s, 0, 1); delta = the step actually taken
+ *   axpy           x <- x + a y   (moving back along the chord of a clamped step)
+ *   fista_step     P_out = clamp(y - step (G + beta (G - G_prev)), 0, 1),  y = P + beta (P - P_prev)
+ *                  (the gradient at y by linearity from the gradients at P_k and P_k-1)
+ *   reduce_partials  second stage of every reduction (first stage: in these kernels / metric.cl)
+ *   decode_lut     uint8 (H, W, 3) codes -> planar linear light through the response LUT (+ headroom)
+ *   encode_lut     planar linear P -> uint8 (H, W, 3) codes through the inverse response
+ *
+ * Layout: images are planar float32 (3, H, W) treated as flat arrays of n = 3 H W elements;
+ * g / G hold F^T q (the factor 2 of grad d is folded into t and step by the host).
+ * Element kernels: each work-item takes ITEMS chunks of VEC consecutive elements (float16 on a
+ * CPU, scalars on a GPU), chunk j of group b being b*WG*ITEMS + j*WG + local id (so neighbouring
+ * work-items touch neighbouring memory); global size ceil(n / (VEC*ITEMS*WG)) * WG, local WG.
+ * partials: float32 (NQ, n_groups) as partials[k * n_groups + group].
+ * decode_lut: one work-item per pixel; encode_lut: 16 pixels per work-item (see there).
+ *
+ * Constants (-D): WG (a power of two within the device's work-group limit), ITEMS, VEC (16 or 1);
+ * ENC_T, ENC_STEPS (encode_lut's table size and correction steps).
+ */
+#include "common.h"
+
+#if !defined(WG) || !defined(ITEMS) || !defined(VEC)
+#error "solver.cl needs -D WG, ITEMS and VEC"
+#endif
+
+#if VEC == 16
+typedef float16 vecf;
+typedef float16 __attribute__((aligned(4))) float16_u;   /* one unaligned vector move */
+
+inline vecf vld(__global const float *restrict p, const size_t i, const size_t n)
+{
+    if (i + 16 <= n) return *(__global const float16_u *)(p + i);
+    float tmp[16];
+    for (int j = 0; j < 16; ++j) tmp[j] = i + j < n ? p[i + j] : 0.0f;
+    return vload16(0, tmp);
+}
+
+inline void vst(__global float *restrict p, const size_t i, const size_t n, const vecf v)
+{
+    if (i + 16 <= n) { *(__global float16_u *)(p + i) = v; return; }
+    float tmp[16];
+    vstore16(v, 0, tmp);
+    for (int j = 0; j < 16 && i + j < n; ++j) p[i + j] = tmp[j];
+}
+
+inline float vsum(const vecf v)
+{
+    const float8 a = v.lo + v.hi;
+    const float4 b = a.lo + a.hi;
+    const float2 c = b.lo + b.hi;
+    return c.x + c.y;
+}
+#elif VEC == 1
+typedef float vecf;
+inline vecf vld(__global const float *restrict p, const size_t i, const size_t n) { return i < n ? p[i] : 0.0f; }
+inline void vst(__global float *restrict p, const size_t i, const size_t n, const vecf v) { if (i < n) p[i] = v; }
+inline float vsum(const vecf v) { return v; }
+#else
+#error "VEC must be 16 or 1"
+#endif
+
+/* Element index of chunk j of this work-item. */
+#define CHUNK(j) (((size_t)get_group_id(0) * WG * ITEMS + (size_t)(j) * WG + get_local_id(0)) * VEC)
+
+/* Tree sum over the work-group of up to 4 quantities; the total is valid in work-item 0. */
+inline float4 wg_sum4(__local float4 *scratch, float4 v)
+{
+    const int lid = get_local_id(0);
+    scratch[lid] = v;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int s = WG / 2; s > 0; s >>= 1) {
+        if (lid < s) scratch[lid] += scratch[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    return scratch[0];
+}
+
+inline void store_partials(__global float *partials, const float4 total, const int nq)
+{
+    if (get_local_id(0) == 0) {
+        const int ng = get_num_groups(0), g = get_group_id(0);
+        partials[g] = total.x;
+        if (nq > 1) partials[ng + g] = total.y;
+        if (nq > 2) partials[2 * ng + g] = total.z;
+        if (nq > 3) partials[3 * ng + g] = total.w;
+    }
+}
+
+/* s = -g where P may move that way, else 0.  partials[0] = sum s^2 (= -<g, s>). */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void pg_direction(__global const float *restrict P, __global const float *restrict g,
+                  __global float *restrict s, __global float *restrict partials, const int n)
+{
+    __local float4 scratch[WG];
+    vecf acc = (vecf)(0.0f);
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        const vecf p = vld(P, i, n), gi = vld(g, i, n);
+        const vecf si = select(-gi, (vecf)(0.0f), (p <= 0.0f && gi > 0.0f) || (p >= 1.0f && gi < 0.0f));
+        vst(s, i, n, si);
+        acc += si * si;
+    }
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(acc), 0.0f, 0.0f, 0.0f)), 1);
+}
+
+/* P <- clamp(P + t s, 0, 1); delta = new P - old P.
+ * partials: [0] sum delta^2, [1] sum P_new^2, [2] number of elements the clamp changed. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void pg_step(__global float *restrict P, __global const float *restrict s, const float t,
+             __global float *restrict delta, __global float *restrict partials, const int n)
+{
+    __local float4 scratch[WG];
+    vecf a0 = (vecf)(0.0f), a1 = a0, a2 = a0;
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        const vecf p = vld(P, i, n), moved = p + t * vld(s, i, n);
+        const vecf pn = clamp(moved, 0.0f, 1.0f);
+        const vecf d = pn - p;
+        vst(P, i, n, pn);
+        vst(delta, i, n, d);
+        a0 += d * d;
+        a1 += pn * pn;
+        a2 += select((vecf)(0.0f), (vecf)(1.0f), pn != moved);
+    }
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), vsum(a2), 0.0f)), 3);
+}
+
+/* x <- x + a y. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void axpy(__global float *restrict x, __global const float *restrict y, const float a, const int n)
+{
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        vst(x, i, n, vld(x, i, n) + a * vld(y, i, n));
+    }
+}
+
+/* P_out = clamp(y - step g_y, 0, 1) with y = P + beta (P - P_prev), g_y = G + beta (G - G_prev)
+ * (P_prev and G_prev are not read when beta == 0; P_out distinct from the inputs).
+ * partials: [0] sum (P_out - P)^2, [1] sum P_out^2. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void fista_step(__global const float *restrict P, __global const float *restrict P_prev,
+                __global const float *restrict G, __global const float *restrict G_prev,
+                const float beta, const float step, __global float *restrict P_out,
+                __global float *restrict partials, const int n)
+{
+    __local float4 scratch[WG];
+    vecf a0 = (vecf)(0.0f), a1 = a0;
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        const vecf p = vld(P, i, n), g = vld(G, i, n);
+        vecf y = p, gy = g;
+        if (beta != 0.0f) {
+            y += beta * (p - vld(P_prev, i, n));
+            gy += beta * (g - vld(G_prev, i, n));
+        }
+        const vecf pn = clamp(y - step * gy, 0.0f, 1.0f);
+        vst(P_out, i, n, pn);
+        const vecf d = pn - p;
+        a0 += d * d;
+        a1 += pn * pn;
+    }
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), 0.0f, 0.0f)), 2);
+}
+
+/* dst = clamp(src, 0, 1). */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void clamp_copy(__global const float *restrict src, __global float *restrict dst, const int n)
+{
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        vst(dst, i, n, clamp(vld(src, i, n), 0.0f, 1.0f));
+    }
+}
+
+/* Second stage: out[k] = sum_g partials[k * n_groups + g]; one work-group of WG items per k.
+ * Global size (nq * WG), local size WG. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void reduce_partials(__global const float *restrict partials, const int n_groups,
+                     __global float *restrict out)
+{
+    __local float4 scratch[WG];
+    const int k = get_group_id(0);
+    float acc = 0.0f;
+    for (int g = get_local_id(0); g < n_groups; g += WG) acc += partials[k * n_groups + g];
+    const float4 total = wg_sum4(scratch, (float4)(acc, 0.0f, 0.0f, 0.0f));
+    if (get_local_id(0) == 0) out[k] = total.x;
+}
+
+/* dst[c, y, x] = lo + scale * lut[c, src[y, x, c]]: decode the warped frame to linear light and
+ * map it into the headroom [lo, lo + scale].  src uint8 (H, W, 3), lut float32 (3, 256),
+ * dst float32 (3, H, W); npix = H W. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void decode_lut(__global const uchar *restrict src, __global const float *restrict lut,
+                const float lo, const float scale, __global float *restrict dst, const int npix)
+{
+    const size_t i = get_global_id(0);
+    if (i >= (size_t)npix) return;
+    for (int c = 0; c < 3; ++c)
+        dst[(size_t)c * npix + i] = lo + scale * lut[c * 256 + src[3 * i + c]];
+}
+
+/* dst[y, x, c] = the code whose response is nearest P[c, y, x] under piecewise-linear
+ * interpolation of the strictly increasing response (3, 256): the number of code midpoints
+ * mid[c, v] = (lut[c, v] + lut[c, v + 1]) / 2 that are <= P (mid[c, 255] = +inf).
+ * The count starts from tab[c, b], its value at the start of P's bin b = floor(P * ENC_T) (host
+ * table), and is finished by ENC_STEPS comparisons; exact when no bin holds more midpoints
+ * (the host checks; the NumPy twin does the very same steps). A binary search with a
+ * data-dependent loop ran ~25x slower on PoCL. Each work-item encodes 16 pixels and writes their
+ * 48 interleaved bytes as three 16-byte vectors.
+ * P float32 (3, H, W), mid float32 (3, 256), tab uint8 (3, ENC_T), dst uint8 (H, W, 3);
+ * npix = H W; global size ceil(ceil(npix / 16) / WG) * WG. */
+#ifndef ENC_T
+#define ENC_T 16384
+#endif
+#ifndef ENC_STEPS
+#define ENC_STEPS 4
+#endif
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void encode_lut(__global const float *restrict P, __global const float *restrict mid,
+                __global const uchar *restrict tab, __global uchar *restrict dst, const int npix)
+{
+    const int i0 = get_global_id(0) * 16;
+    if (i0 >= npix) return;
+    uchar out[48];
+    for (int c = 0; c < 3; ++c) {
+        __global const float *m = mid + c * 256;
+        __global const uchar *tb = tab + c * ENC_T;
+        for (int j = 0; j < 16; ++j) {
+            const float p = i0 + j < npix ? P[(size_t)c * npix + i0 + j] : 0.0f;
+            int code = tb[clamp((int)(p * (float)ENC_T), 0, ENC_T - 1)];
+            for (int k = 0; k < ENC_STEPS; ++k) code += p >= m[code] ? 1 : 0;
+            out[3 * j + c] = (uchar)code;
+        }
+    }
+    if (i0 + 16 <= npix) {
+        for (int k = 0; k < 3; ++k) vstore16(vload16(k, out), 0, dst + 3 * (size_t)i0 + 16 * k);
+    } else {
+        for (int k = 0; k < 3 * (npix - i0); ++k) dst[3 * (size_t)i0 + k] = out[k];
+    }
+}

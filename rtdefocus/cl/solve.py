@@ -1,0 +1,245 @@
+"""The compensation solve's device operations (``kernels/metric.cl``, ``kernels/solver.cl``).
+
+:class:`ClSolveOps` is the OpenCL twin of :class:`rtdefocus.compensate.solvers.NumpyOps`: the
+same primitive operations (blur, metric field, projected steps, reductions, LUT decode/encode)
+on planar ``(3, H, W)`` float32 device arrays. Everything is sized for one projector frame and
+allocated once; programs are built once per (context, constants) by the runtime's cache, so a
+frame loop neither allocates nor compiles. Reductions run in two stages on the device (per
+work-group partial sums, then one work-group per quantity) and only the final scalars (≤ 4
+floats) come back to the host, which needs them to pick the next step length.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..compensate.solvers import ENC_STEPS, ENC_T, inverse_lut_tables
+from ..errors import InputError
+from ..reference.metric import Metric
+from .blur import ClBlur
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ClSolveOps", "metric_defines"]
+
+
+def _pow2_floor(n: int) -> int:
+    return 1 << (max(1, int(n)).bit_length() - 1)
+
+
+def metric_defines(metric: Metric) -> dict:
+    """The ``-D`` constants of ``metric.cl`` for a :class:`Metric` (Q = A0 + A1 Lap)."""
+    a0, a1 = metric.qmatrices
+    out = {"HAS_SPATIAL": int(bool(metric.spatial.any()))}
+    for name, m in (("A0", a0), ("A1", a1)):
+        for r in range(3):
+            for c in range(3):
+                out[f"{name}_{r}{c}"] = f"{float(m[r, c]):.9e}f"
+    return out
+
+
+class ClSolveOps:
+    """Device buffers and kernels for solving one ``(3, H, W)`` frame.
+
+    Parameters
+    ----------
+    runtime : rtdefocus.cl.runtime.ClRuntime
+    psfs, idx, wts : the kernel field F (docs/internals.md), ``idx`` (H, W, 4) fixes the size.
+    metric : Metric
+    blur_variant : {"cpu", "gpu"}, optional
+        Passed to :class:`ClBlur` (default: by device type).
+
+    Notes
+    -----
+    Buffers are ``pyopencl.array.Array`` objects; :meth:`new` allocates one (zeroed) and is meant
+    for set-up only.
+    """
+
+    backend = "opencl"
+
+    def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None):
+        import pyopencl as cl
+        import pyopencl.array as cla
+
+        self._cl, self._cla = cl, cla
+        self.runtime = runtime
+        self.queue = runtime.queue
+        self.metric = metric
+        self.blur = ClBlur(runtime, psfs, idx, wts, channels=3, variant=blur_variant)
+        self.shape = self.blur.shape
+        _, h, w = self.shape
+        self._h, self._w = np.int32(h), np.int32(w)
+        self.n = 3 * h * w
+        dev = runtime.device
+        variant = self.blur.variant           # the same shape choice as the blur's
+        self.variant = variant
+        # Work-group sizes from the device limits (powers of two). CPU (PoCL): a few work-items
+        # per group, each on 16-float vectors, so that many groups spread over the cores; GPU:
+        # up to 256 items per group, one element / pixel each.
+        maxwg = _pow2_floor(dev.max_work_group_size)
+        if variant == "cpu":
+            wg, items, vec = min(8, maxwg), 4, 16
+            lx, ly = min(8, maxwg), 1
+            mdef = {"VARIANT_CPU": 1}
+            nx = -(-w // 16)                     # 16-pixel row chunks per row
+        else:
+            wg, items, vec = min(256, maxwg), 4, 1
+            lx = min(16, wg)
+            ly = max(1, min(16, wg // lx))
+            mdef = {"VARIANT_GPU": 1}
+            nx = w
+        self._prg_m = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
+                                                    "LX": lx, "LY": ly})
+        sdef = {"ITEMS": items, "VEC": vec, "ENC_T": ENC_T, "ENC_STEPS": ENC_STEPS}
+        self._prg_s = runtime.program("solver.cl", {"WG": wg, **sdef})
+        self._wg, self._items = wg, items
+        self._m_local = (lx, ly)
+        self._m_global = (-(-nx // lx) * lx, -(-h // ly) * ly)
+        self._m_groups = (self._m_global[0] // lx) * (self._m_global[1] // ly)
+        self._e_groups = -(-self.n // (vec * items * wg))
+        self._e_global = (self._e_groups * wg,)
+        npix = h * w
+        self._p_global = (-(-npix // wg) * wg,)
+        n_enc = -(-npix // 16)                  # encode_lut: 16 pixels per work-item
+        self._enc_global = (-(-n_enc // wg) * wg,)
+        # The second reduction stage: one group per quantity, as wide as the device allows (<= 256).
+        self._r_wg = min(256, maxwg)
+        prg_r = runtime.program("solver.cl", {"WG": self._r_wg, **sdef})
+        self._partials = cla.zeros(self.queue, 4 * max(self._m_groups, self._e_groups), np.float32)
+        self._sums = cla.zeros(self.queue, 4, np.float32)
+        self._sums_host = np.zeros(4, np.float32)
+        self._codes = cla.zeros(self.queue, (h, w, 3), np.uint8)
+        self._luts: dict = {}
+        # Own kernel objects (cl.Kernel): kernel arguments are per-object state, and programs are
+        # shared between instances through the runtime's cache.
+        self._k = {name: cl.Kernel(self._prg_m, name) for name in
+                   ("metric_residual", "metric_update", "metric_curvature")}
+        self._k.update({name: cl.Kernel(self._prg_s, name) for name in
+                        ("pg_direction", "pg_step", "axpy", "fista_step", "clamp_copy",
+                         "decode_lut", "encode_lut")})
+        self._k_reduce = cl.Kernel(prg_r, "reduce_partials")
+        log.debug("ClSolveOps %dx%d on %s: metric local %s, element WG %d x %d items",
+                  w, h, runtime.description, self._m_local, wg, items)
+
+    # ------------------------------------------------------------------ buffers
+    def new(self):
+        """A zeroed ``(3, H, W)`` float32 device array (set-up only)."""
+        return self._cla.zeros(self.queue, self.shape, np.float32)
+
+    def upload(self, host: np.ndarray, dst) -> None:
+        host = np.ascontiguousarray(host, dtype=np.float32)
+        if host.shape != self.shape:
+            raise InputError(f"expected a {self.shape} (3, H, W) image, got {host.shape}")
+        dst.set(host, queue=self.queue)
+
+    def download(self, src) -> np.ndarray:
+        return src.get(queue=self.queue)
+
+    def copy(self, src, dst) -> None:
+        self._cl.enqueue_copy(self.queue, dst.data, src.data)
+
+    def clamp_copy(self, src, dst) -> None:
+        """dst = clamp(src, 0, 1)."""
+        self._k["clamp_copy"](self.queue, self._e_global, (self._wg,), src.data, dst.data,
+                              np.int32(self.n))
+
+    def finish(self) -> None:
+        self.queue.finish()
+
+    # ------------------------------------------------------------------ reductions
+    def _reduce(self, n_groups: int, nq: int) -> np.ndarray:
+        self._k_reduce(self.queue, (nq * self._r_wg,), (self._r_wg,), self._partials.data,
+                       np.int32(n_groups), self._sums.data)
+        self._cl.enqueue_copy(self.queue, self._sums_host, self._sums.data)  # blocking
+        return self._sums_host[:nq].astype(np.float64)
+
+    # ------------------------------------------------------------------ blur
+    def forward(self, src, dst) -> None:
+        self.blur.forward(src, dst)
+
+    def adjoint(self, src, dst) -> None:
+        self.blur.adjoint(src, dst)
+
+    # ------------------------------------------------------------------ metric
+    def metric_residual(self, fp, target, q) -> float:
+        """q = Q (fp − target); returns d = ⟨e, q⟩."""
+        self._k["metric_residual"](self.queue, self._m_global, self._m_local, fp.data, target.data,
+                                   q.data, self._partials.data, self._h, self._w)
+        return float(self._reduce(self._m_groups, 1)[0])
+
+    def metric_update(self, fp, fs, t: float, target, fp_out, q) -> float:
+        """fp_out = fp + t fs; q = Q (fp_out − target); returns d."""
+        self._k["metric_update"](self.queue, self._m_global, self._m_local, fp.data, fs.data,
+                                 np.float32(t), target.data, fp_out.data, q.data,
+                                 self._partials.data, self._h, self._w)
+        return float(self._reduce(self._m_groups, 1)[0])
+
+    def metric_curvature(self, fs, v=None) -> tuple[float, float]:
+        """(⟨fs, Q fs⟩, ⟨fs, v⟩) — the second is 0 when v is None."""
+        self._k["metric_curvature"](self.queue, self._m_global, self._m_local, fs.data,
+                                    (v if v is not None else fs).data, np.int32(v is not None),
+                                    self._partials.data, self._h, self._w)
+        c, dv = self._reduce(self._m_groups, 2)
+        return float(c), float(dv)
+
+    # ------------------------------------------------------------------ steps
+    def pg_direction(self, P, g, s) -> float:
+        self._k["pg_direction"](self.queue, self._e_global, (self._wg,), P.data, g.data, s.data,
+                                self._partials.data, np.int32(self.n))
+        return float(self._reduce(self._e_groups, 1)[0])
+
+    def pg_step(self, P, s, t: float, delta) -> tuple[float, float, int]:
+        self._k["pg_step"](self.queue, self._e_global, (self._wg,), P.data, s.data, np.float32(t),
+                           delta.data, self._partials.data, np.int32(self.n))
+        dd, pp, nclip = self._reduce(self._e_groups, 3)
+        return float(dd), float(pp), int(round(nclip))
+
+    def axpy(self, x, y, a: float) -> None:
+        self._k["axpy"](self.queue, self._e_global, (self._wg,), x.data, y.data, np.float32(a),
+                        np.int32(self.n))
+
+    def fista_step(self, P, P_prev, G, G_prev, beta: float, step: float, P_out,
+                   sums: bool = True) -> tuple[float, float]:
+        """P_out = clamp(y − step g_y); returns (‖P_out − P‖², ‖P_out‖²), or NaNs without
+        ``sums`` (no second reduction stage and no host synchronisation)."""
+        self._k["fista_step"](self.queue, self._e_global, (self._wg,), P.data, P_prev.data, G.data,
+                              G_prev.data, np.float32(beta), np.float32(step), P_out.data,
+                              self._partials.data, np.int32(self.n))
+        if not sums:
+            return float("nan"), float("nan")
+        dd, pp = self._reduce(self._e_groups, 2)
+        return float(dd), float(pp)
+
+    # ------------------------------------------------------------------ LUT I/O
+    def _lut_buffers(self, lut: np.ndarray, encoder: bool):
+        """Device copies of a (3, 256) LUT (decoder) or of its encoder tables, uploaded once
+        per distinct LUT."""
+        lut = np.ascontiguousarray(lut, np.float32)
+        key = (lut.tobytes(), encoder)
+        bufs = self._luts.get(key)
+        if bufs is None:
+            if len(self._luts) >= 8:
+                self._luts.clear()
+            host = inverse_lut_tables(lut) if encoder else (lut,)
+            bufs = self._luts[key] = tuple(self._cla.to_device(self.queue, np.ascontiguousarray(a))
+                                           for a in host)
+        return bufs
+
+    def decode(self, codes: np.ndarray, lut: np.ndarray, lo: float, scale: float, dst) -> None:
+        """dst = lo + scale · lut[c, codes[..., c]] (planar) from uint8 (H, W, 3) codes."""
+        codes = np.ascontiguousarray(codes, dtype=np.uint8)
+        self._codes.set(codes, queue=self.queue)
+        (lut_d,) = self._lut_buffers(lut, encoder=False)
+        self._k["decode_lut"](self.queue, self._p_global, (self._wg,), self._codes.data,
+                              lut_d.data, np.float32(lo), np.float32(scale), dst.data,
+                              np.int32(self.n // 3))
+
+    def encode(self, P, lut_increasing: np.ndarray) -> np.ndarray:
+        """uint8 (H, W, 3) codes of P through the inverse of a strictly increasing LUT
+        (:func:`rtdefocus.compensate.solvers.encode_lut` is the twin)."""
+        mid, tab = self._lut_buffers(lut_increasing, encoder=True)
+        self._k["encode_lut"](self.queue, self._enc_global, (self._wg,), P.data, mid.data,
+                              tab.data, self._codes.data, np.int32(self.n // 3))
+        return self._codes.get(queue=self.queue)

@@ -1,0 +1,292 @@
+"""``rd.Compensator``: geometry + defocus compensation of frames for one calibration (DESIGN.md §2).
+
+Per frame: warp the input into projector space (GL pass, geometry only) → decode the uint8
+warp to linear light through the projector response (the target I, optionally mapped into a
+headroom) → solve ``min d(F P, I), 0 <= P <= 1`` (warm-started from the previous frame's P) →
+encode P back through the inverse response → uint8 for the projector. With the OpenCL backend
+the decode, solve and encode all run on the device in buffers allocated once.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from ..errors import CalibrationFileError, InputError
+from ..reference.metric import Metric
+from .solvers import (
+    SOLVERS,
+    SolveInfo,
+    Solver,
+    apply_headroom,
+    decode_lut,
+    encode_lut,
+    headroom_params,
+    increasing_lut,
+    wiener_prefilter,
+)
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Compensator", "METHODS", "DEFAULT_WEIGHTS", "DEFAULT_ITERATIONS"]
+
+METHODS = ("ycbcr", "rgb", "wiener", "none")
+
+# Eq. 4 weights (w1 luma, w2 chroma, w3 luma gradient, w4 chroma gradient), chosen by
+# `tools/tune_metric.py weights --iterations 40` on the simulator (cubicle, tilted, pillar at
+# 400x300 with the oracle kernels; four photographs and a text slide; FISTA at the default
+# budget): ranked by the luma-SSIM gain of the camera view over geometry only, against the sharp
+# reference; ties (within 2e-4) broken by RGB PSNR. The luma-gradient term helps luma (w3 0 ->
+# 0.25: luma PSNR gain +4.97 -> +5.19 dB) until it over-smooths (w3 = 1: +5.14 dB); w4 and a
+# lower w2 only trade colour PSNR. Per-channel RGB least squares: luma PSNR +5.07 dB, luma SSIM
+# +0.0258, RGB PSNR +4.86 dB; these weights: +5.19 dB, +0.0258, +4.64 dB.
+DEFAULT_WEIGHTS = (1.0, 0.5, 0.25, 0.0)
+# Iteration budget per frame (`tools/tune_metric.py solver`, cubicle, oracle kernels, five
+# images): camera-view PSNR gain over geometry only for FISTA at 10/20/40/80 iterations was
+# +3.2/+4.0/+4.6/+5.0 dB at 400x300 and +1.9/+2.6/+3.3/+3.6 dB at 800x600 — the knee is at 40
+# (a further doubling buys < 0.4 dB). PG with exact line search reached +4.2 dB in 40 and
+# +4.5 dB in 80 iterations (400x300) at 2-3 blurs per iteration against FISTA's 2, hence FISTA
+# is the default solver. In a video the warm start carries the work across frames, so a smaller
+# per-frame budget (`iterations=`) still converges on still content.
+DEFAULT_ITERATIONS = {"fista": 40, "pg": 40}
+DEFAULT_WIENER_NSR = 0.1
+
+_warned_no_opencl = False
+
+
+class Compensator:
+    """Geometry and defocus compensation of frames for one calibrated set-up.
+
+    Parameters
+    ----------
+    calib : rtdefocus.Calibration
+        Needs the PSF section for every method but ``"none"``.
+    backend : "auto" | "opencl" | "numpy"
+        ``"auto"``: OpenCL when a device exists, else NumPy (with one logged warning).
+    method : "ycbcr" | "rgb" | "wiener" | "none"
+        ``"ycbcr"``: the paper's Eq. 4 metric (default); ``"rgb"``: per-channel least squares
+        (Zhang & Nayar 2006); ``"wiener"``: per-plane Wiener pre-filter (Brown et al. 2006);
+        ``"none"``: geometry only.
+    solver : "fista" | "pg"
+    iterations : int, optional
+        Iteration budget per frame (default :data:`DEFAULT_ITERATIONS` of the solver).
+    tol : float
+        Stop early when ``‖ΔP‖ / ‖P‖`` falls below this (0: always run the budget).
+    weights : (w1, w2, w3, w4)
+        Eq. 4 weights of the ``"ycbcr"`` metric.
+    headroom : (lo, hi), optional
+        Map the target into [lo, hi] before solving: less contrast, fewer clipped pixels.
+    warp_backend : "auto" | "gl" | "cv2"
+    wiener_nsr : float
+        Noise-to-signal constant of the ``"wiener"`` method.
+    blur_variant : "cpu" | "gpu", optional
+        OpenCL blur kernel shape (default by device type).
+
+    Attributes
+    ----------
+    last_info : dict
+        Of the last :meth:`compensate` / :meth:`solve`: ``iterations``, ``distances``,
+        ``seconds`` (per stage: warp, decode, solve, encode, total), ``solver``, ``method``,
+        ``warm_start``, ``restarts``, ``converged``.
+    backend : "opencl" | "numpy" (resolved)
+    """
+
+    def __init__(self, calib, backend: str = "auto", method: str = "ycbcr", solver: str = "fista",
+                 iterations: int | None = None, tol: float = 0.0,
+                 weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS,
+                 headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
+                 wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None):
+        if method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}; got {method!r}")
+        if solver not in SOLVERS:
+            raise InputError(f"solver must be one of {SOLVERS}; got {solver!r}")
+        if backend not in ("auto", "opencl", "numpy"):
+            raise InputError(f"backend must be 'auto', 'opencl' or 'numpy'; got {backend!r}")
+        if iterations is not None and iterations < 0:
+            raise InputError(f"iterations must be >= 0; got {iterations}")
+        if method != "none" and not calib.has_psf:
+            raise CalibrationFileError(
+                f"method {method!r} needs the calibration's PSF section (the defocus kernels), "
+                "which this calibration lacks; calibrate with the 'psf' stage "
+                "(`rtdefocus calibrate ...` or rd.calibrate(procam, stages=('geometry', "
+                "'radiometry', 'psf'))), or use method='none' for geometry only")
+        self.calib = calib
+        self.method = method
+        self.solver_name = solver
+        self.iterations = DEFAULT_ITERATIONS[solver] if iterations is None else int(iterations)
+        self.tol = float(tol)
+        self.weights = tuple(float(w) for w in weights)
+        self.headroom = headroom
+        headroom_params(headroom)                      # validate now, not at the first frame
+        self.warp_backend = warp_backend
+        self.wiener_nsr = float(wiener_nsr)
+        self.backend = _resolve_backend(backend)
+        self._lut = np.asarray(calib.lut, dtype=np.float32)
+        self._lut_inc = increasing_lut(self._lut)
+        self._solver: Solver | None = None
+        self._warm = False
+        self.last_info: dict = {}
+        if method in ("ycbcr", "rgb"):
+            metric = Metric.ycbcr(self.weights) if method == "ycbcr" else Metric.rgb()
+            # NumPy: the filter2D form of F (exactly the same operator, several times faster).
+            self._solver = Solver(calib.psfs, calib.pix_idx, calib.pix_wts, metric,
+                                  backend=self.backend, solver=solver,
+                                  blur="filter2d", blur_variant=blur_variant)
+
+    # ------------------------------------------------------------------ public
+    @property
+    def projector_size(self) -> tuple[int, int]:
+        return tuple(self.calib.projector_size)
+
+    def display_rect(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
+        """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears."""
+        return self.calib.display_rect(size)
+
+    def warp(self, image: np.ndarray) -> np.ndarray:
+        """Geometry correction only: (H, W, 3) uint8 input -> (Hp, Wp, 3) uint8 projector frame."""
+        from ..gl.warp import warp_image
+
+        return warp_image(self.calib, image, backend=self.warp_backend)
+
+    def reset(self) -> None:
+        """Forget the previous frame (the next :meth:`compensate` starts from its target)."""
+        self._warm = False
+
+    def compensate(self, image: np.ndarray, *, iterations: int | None = None,
+                   warm_start: bool = True) -> np.ndarray:
+        """Geometry + defocus compensation of one frame.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 RGB, any size.
+        iterations : overrides the constructor's budget for this frame.
+        warm_start : start from the previous frame's P (when there is one); else from the target.
+
+        Returns
+        -------
+        (Hp, Wp, 3) uint8, for the projector.
+        """
+        t0 = time.perf_counter()
+        warped = self.warp(image)
+        t1 = time.perf_counter()
+        out, info = self._compensate_warped(warped, iterations, warm_start)
+        info["seconds"]["warp"] = t1 - t0
+        info["seconds"]["total"] = time.perf_counter() - t0
+        self.last_info = info
+        return out
+
+    def compensate_warped(self, warped: np.ndarray, *, iterations: int | None = None,
+                          warm_start: bool = True) -> np.ndarray:
+        """:meth:`compensate` for a frame that is already in projector space ((Hp, Wp, 3) uint8)."""
+        t0 = time.perf_counter()
+        out, info = self._compensate_warped(warped, iterations, warm_start)
+        info["seconds"]["total"] = time.perf_counter() - t0
+        self.last_info = info
+        return out
+
+    def solve(self, target_linear: np.ndarray, P0: np.ndarray | None = None,
+              iterations: int | None = None) -> tuple[np.ndarray, dict]:
+        """Solve for a linear-light target given on the host (no warp, no LUTs).
+
+        Parameters
+        ----------
+        target_linear : (3, Hp, Wp) float32 in [0, 1]
+        P0 : (3, Hp, Wp) float32, optional warm start (default: the target).
+        iterations : budget (default: the constructor's).
+
+        Returns
+        -------
+        P : (3, Hp, Wp) float32 in [0, 1]
+        info : dict (as :attr:`last_info`)
+        """
+        target = np.asarray(target_linear, dtype=np.float32)
+        wp, hp = self.projector_size
+        if target.shape != (3, hp, wp):
+            raise InputError(f"target_linear must be planar (3, {hp}, {wp}) linear light; got "
+                             f"{target.shape}")
+        iters = self.iterations if iterations is None else int(iterations)
+        t0 = time.perf_counter()
+        if self._solver is not None:
+            P, sinfo = self._solver.solve(target, P0, iterations=iters, tol=self.tol,
+                                          headroom=self.headroom)
+            self._warm = True
+        else:
+            P = self._direct(apply_headroom(target, self.headroom))
+            sinfo = SolveInfo("direct")
+        info = self._info(sinfo, warm=P0 is not None)
+        info["seconds"]["solve"] = time.perf_counter() - t0
+        self.last_info = info
+        return P, info
+
+    # ------------------------------------------------------------------ internals
+    def _direct(self, target: np.ndarray) -> np.ndarray:
+        if self.method == "wiener":
+            c = self.calib
+            return wiener_prefilter(target, c.psfs, c.psf_plane, c.plane_map(), self.wiener_nsr)
+        return np.clip(target, 0.0, 1.0).astype(np.float32)
+
+    def _info(self, sinfo: SolveInfo, warm: bool) -> dict:
+        return {"method": self.method, "solver": sinfo.solver, "backend": self.backend,
+                "iterations": sinfo.iterations, "distances": list(sinfo.distances),
+                "restarts": sinfo.restarts, "converged": sinfo.converged, "warm_start": warm,
+                "seconds": {}}
+
+    def _compensate_warped(self, warped: np.ndarray, iterations, warm_start: bool):
+        warped = np.asarray(warped)
+        wp, hp = self.projector_size
+        if warped.shape != (hp, wp, 3) or warped.dtype != np.uint8:
+            raise InputError(f"the warped frame must be ({hp}, {wp}, 3) uint8; got "
+                             f"{warped.dtype} {warped.shape}")
+        iters = self.iterations if iterations is None else int(iterations)
+        lo, scale = headroom_params(self.headroom)
+        sec = {}
+        if self._solver is None:
+            if self.method == "none" and self.headroom is None:
+                return warped.copy(), self._info(SolveInfo("direct"), False) | {"seconds": sec}
+            t0 = time.perf_counter()
+            target = decode_lut(warped, self._lut_inc, self.headroom)
+            t1 = time.perf_counter()
+            P = self._direct(target)
+            t2 = time.perf_counter()
+            out = encode_lut(P, self._lut_inc)
+            sec.update(decode=t1 - t0, solve=t2 - t1, encode=time.perf_counter() - t2)
+            return out, self._info(SolveInfo("direct"), False) | {"seconds": sec}
+        s = self._solver
+        ops = s.ops
+        t0 = time.perf_counter()
+        # Decode through the same strictly increasing LUT the encoder inverts, so that a frame
+        # the solve leaves alone comes back with its very codes.
+        ops.decode(warped, self._lut_inc, lo, scale, s.target)
+        warm = warm_start and self._warm
+        if not warm:
+            s.start_from_target()
+        ops.finish()
+        t1 = time.perf_counter()
+        sinfo = s.run(iters, self.tol)
+        t2 = time.perf_counter()
+        out = ops.encode(s.P, self._lut_inc)
+        sec.update(decode=t1 - t0, solve=t2 - t1, encode=time.perf_counter() - t2)
+        self._warm = True
+        info = self._info(sinfo, warm)
+        info["seconds"] = sec
+        return out, info
+
+
+def _resolve_backend(backend: str) -> str:
+    global _warned_no_opencl
+    if backend == "numpy":
+        return "numpy"
+    from ..cl.runtime import opencl_available
+
+    ok, why = opencl_available()
+    if ok:
+        return "opencl"
+    if backend == "opencl":
+        from ..errors import DeviceError
+        raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
+    if not _warned_no_opencl:
+        log.warning("no OpenCL device; compensating with the (slow) NumPy backend: %s", why)
+        _warned_no_opencl = True
+    return "numpy"
