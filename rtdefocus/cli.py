@@ -28,6 +28,7 @@ examples:
   rtdefocus calibrate --sim cubicle -o setup.npz   calibrate the built-in virtual cubicle
   rtdefocus warp setup.npz photo.jpg -o warped.png
   rtdefocus demo -o demo_out                       the whole story on the virtual cubicle
+  rtdefocus play setup.npz talk/ --screen 1        slides on the projector (also video, camera:0)
 """
 
 
@@ -45,28 +46,17 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file as RGB uint8 (H, W, 3); the one place BGR is converted on input."""
-    import cv2
+    """Read an image file as RGB uint8 (H, W, 3) (see :func:`rtdefocus.imageio.read_image`)."""
+    from .imageio import read_image as _read_image  # cv2 loads on first use: `--help` stays fast
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise RtDefocusError(f"cannot read image {str(path)!r}: missing file or unknown format "
-                             "(PNG, JPEG, BMP, TIFF are supported)")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return _read_image(path)
 
 
 def write_image(path: str | Path, rgb: np.ndarray) -> Path:
-    """Write an RGB uint8 image (creating parent folders); the one place BGR is converted on output."""
-    import cv2
+    """Write an RGB uint8 image, creating parent folders (see :func:`rtdefocus.imageio.write_image`)."""
+    from .imageio import write_image as _write_image
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arr = np.asarray(rgb)
-    if arr.ndim == 3:
-        arr = cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
-    if not cv2.imwrite(str(path), arr):
-        raise RtDefocusError(f"cannot write {str(path)!r}: check the folder and the extension")
-    return path
+    return _write_image(path, rgb)
 
 
 # --------------------------------------------------------------------------- info
@@ -127,8 +117,304 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- calibrate
+CALIBRATE_EPILOG = """\
+examples:
+  rtdefocus calibrate --sim cubicle -o setup.npz              the built-in virtual cubicle
+  rtdefocus calibrate --sim pillar -o p.npz --stages geometry --noise 0.01 --seed 3
+  rtdefocus calibrate --camera 0 --screen 1 -o setup.npz      a webcam and the second monitor
+writes setup.npz and, next to it (or in --diagnostics DIR), setup_geometry.png: the camera view
+with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles.
+"""
+
+
+def _available_stages() -> tuple[str, ...]:
+    """Calibration stages whose module is installed (geometry always)."""
+    import importlib.util
+
+    from .calib import STAGES
+    return tuple(s for s in STAGES
+                 if s == "geometry" or importlib.util.find_spec(f"rtdefocus.calib.{s}") is not None)
+
+
+def _stages(text: str) -> tuple[str, ...]:
+    from .calib import STAGES
+
+    stages = tuple(s.strip() for s in text.split(",") if s.strip())
+    bad = [s for s in stages if s not in STAGES]
+    if bad or "geometry" not in stages:
+        raise argparse.ArgumentTypeError(f"stages must include geometry and be among "
+                                         f"{','.join(STAGES)}; got {text!r}")
+    return stages
+
+
+def _add_calibrate(sub):
+    p = sub.add_parser("calibrate", help="calibrate a projector-camera set-up (virtual or real) "
+                       "and write the calibration file", epilog=CALIBRATE_EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--sim", metavar="PRESET", help="the built-in virtual set-up: cubicle, pillar, "
+                     "flat, tilted or offcenter")
+    src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
+                     "go full-screen to --screen")
+    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    p.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
+    default = ",".join(_available_stages())
+    p.add_argument("--stages", type=_stages, default=None,
+                   help=f"comma-separated stages to run (default: {default})")
+    p.add_argument("--seed", type=int, default=0, help="simulator noise seed (default 0)")
+    p.add_argument("--noise", type=float, default=None,
+                   help="simulator camera noise, fraction of full scale (default: the simulator's)")
+    p.add_argument("--diagnostics", metavar="DIR",
+                   help="folder for the diagnostics pictures (default: next to the output)")
+    p.set_defaults(func=cmd_calibrate)
+
+
+def cmd_calibrate(args) -> int:
+    import time
+
+    from . import procam as procam_mod
+    from .calib import calibrate
+    from .calib.geometry import geometry_diagnostics
+
+    stages = args.stages or _available_stages()
+    if args.sim is not None:
+        from . import sim
+
+        kwargs = {"seed": args.seed}
+        if args.noise is not None:
+            kwargs["noise"] = args.noise
+        procam = sim.VirtualProCam(args.sim, **kwargs)
+        source = f"simulator preset {args.sim!r}"
+    else:
+        hw = getattr(procam_mod, "HardwareProCam", None)
+        if hw is None:
+            raise RtDefocusError("hardware capture needs HardwareProCam (not yet available in this "
+                                 "version); use --sim PRESET for the built-in virtual set-up")
+        camera = int(args.camera) if str(args.camera).isdigit() else args.camera
+        procam = hw(camera=camera, screen=args.screen)
+        source = f"camera {args.camera!r}, projector on screen {args.screen}"
+    bars: dict = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if args.quiet:
+            return
+        from tqdm import tqdm
+
+        bar = bars.get(stage)
+        if bar is None:
+            for other in bars.values():
+                other.close()
+            bar = bars[stage] = tqdm(total=total, desc=f"{stage:10s}", unit="capture",
+                                     dynamic_ncols=True, leave=True)
+        if bar.total != total:
+            bar.total = total
+        bar.update(done - bar.n)
+
+    t0 = time.perf_counter()
+    try:
+        calib = calibrate(procam, stages=stages, progress=progress)
+    finally:
+        for bar in bars.values():
+            bar.close()
+        if hasattr(procam, "close"):
+            procam.close()
+    seconds = time.perf_counter() - t0
+    out = calib.save(args.output)
+    diag_dir = Path(args.diagnostics) if args.diagnostics else out.parent
+    picture = write_image(diag_dir / f"{out.stem}_geometry.png", geometry_diagnostics(calib))
+    g = calib.meta.get("geometry", {})
+    rms = ", ".join(f"{v:.3f}" for v in g.get("rms_px", []))
+    print(f"calibrated {source} in {seconds:.1f} s, {sum(calib.meta.get('captures', {}).values())} "
+          f"captures {calib.meta.get('captures', {})}")
+    fold = (f", fold disagreement {g['fold_disagreement_px']:.3f} projector px"
+            if g.get("fold_disagreement_px") is not None else "")
+    print(f"geometry: {calib.n_planes} plane(s), reprojection RMS {rms} camera px{fold}, "
+          f"{g.get('lines_found')} of {g.get('lines_expected')} lines")
+    print(f"wrote {out} (sections: {', '.join(calib.sections())})")
+    print(f"wrote {picture}")
+    return 0
+
+
+# --------------------------------------------------------------------------- warp
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+        if not 0.0 <= value < 0.5:
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"margin must be a fraction in [0, 0.5), e.g. 0.05; "
+                                         f"got {text!r}") from None
+    return value
+
+
+def _add_warp(sub):
+    p = sub.add_parser(
+        "warp", help="geometry-correct an image for the projector with a calibration",
+        description="Warp IMAGE into projector space so that, projected, it appears upright and "
+        "undistorted in the largest rectangle of its aspect the projector lights (the display "
+        "rect, in camera pixels), stitched across the fold. Geometry only, no defocus "
+        "compensation.",
+        epilog="example:\n  rtdefocus warp setup.npz photo.jpg -o warped.png --margin 0.05",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("calibration", help="calibration file (.npz) from `rtdefocus calibrate`")
+    p.add_argument("image", help="input image, any size (PNG, JPEG, ...)")
+    p.add_argument("-o", "--output", required=True, help="output image (projector-sized PNG)")
+    p.add_argument("--margin", type=_fraction, default=0.0,
+                   help="shrink the display rect by this fraction (default 0)")
+    p.add_argument("--backend", choices=("auto", "gl", "cv2"), default="auto",
+                   help="gl: OpenGL shader; cv2: the reference; auto (default): gl when EGL works")
+    p.set_defaults(func=cmd_warp)
+
+
+def cmd_warp(args) -> int:
+    from .calib.file import Calibration
+    from .gl.warp import warp_image
+
+    calib = Calibration.load(args.calibration)
+    image = read_image(args.image)
+    h, w = image.shape[:2]
+    rect = calib.display_rect((w, h), margin=args.margin)
+    print(f"display rect (camera px): x={rect[0]} y={rect[1]} w={rect[2]} h={rect[3]} "
+          f"for the {w}x{h} input")
+    out = write_image(args.output, warp_image(calib, image, rect=rect, backend=args.backend))
+    wp, hp = calib.projector_size
+    print(f"wrote {out} ({wp}x{hp} projector frame, {calib.n_planes} plane(s))")
+    return 0
+
+
+# --------------------------------------------------------------------------- play
+PLAY_EPILOG = """\
+SOURCE is an image, a folder of images (slides, natural order: 2 before 10), a video file,
+camera:INDEX (e.g. camera:0), camera:URL or a stream URL (rtsp://, http://...).
+Without --out the frames go full-screen to monitor --screen, with keys:
+  space pause   left/right previous/next slide   c compensation on/off (A/B)
+  g geometry only   s stats overlay   q/Esc quit
+examples:
+  rtdefocus play setup.npz talk/ --screen 1                   slideshow on the projector
+  rtdefocus play setup.npz camera:0 --screen 1 --fps 30       live camera feed
+  rtdefocus play setup.npz clip.mp4 --out clip_comp.mp4       render a video file offline
+  rtdefocus play setup.npz clip.mp4 --out null --stats s.json benchmark, statistics as JSON
+"""
+
+
+def _add_play(sub):
+    p = sub.add_parser("play", help="stream a video, a camera or slides through the compensation to "
+                       "the projector (or to files)", epilog=PLAY_EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("calibration", help="the set-up file from `rtdefocus calibrate` (.npz)")
+    p.add_argument("source", help="image | folder | video | camera:INDEX | camera:URL | URL")
+    p.add_argument("--out", metavar="FILE|DIR", help="video file (.mp4, .avi), image (.png), folder "
+                   "(numbered PNGs) or 'null'; default: full-screen window on --screen")
+    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    p.add_argument("--windowed", type=parse_size, metavar="WxH",
+                   help="a plain window of this size instead of full-screen (preview)")
+    p.add_argument("--fps", type=float, help="target frame rate (default: the source's, else 30)")
+    p.add_argument("--method", default="ycbcr", help="ycbcr (default) | rgb | wiener | none")
+    p.add_argument("--backend", default="auto", choices=("auto", "opencl", "numpy"))
+    p.add_argument("--iterations", type=int,
+                   help="solver iterations per frame (default: adaptive in the window, the "
+                   "Compensator's budget for files, until converged for slides)")
+    p.add_argument("--stats", metavar="FILE", help="also write the run's statistics as JSON")
+    p.add_argument("--cache", metavar="DIR", help="slide cache folder (default ~/.cache/rtdefocus)")
+    p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
+    p.add_argument("--camera-size", type=parse_size, metavar="WxH", help="camera resolution to ask for")
+    p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
+    p.set_defaults(func=cmd_play)
+
+
+def cmd_play(args) -> int:
+    from .calib.file import Calibration
+    from .compensate.compensator import Compensator
+    from .stream import Player, open_sink, open_source
+
+    calib = Calibration.load(args.calibration)
+    comp = Compensator(calib, backend=args.backend, method=args.method)
+    bar = None
+    with open_source(args.source, camera_size=args.camera_size) as source:
+        with open_sink(args.out, fps=args.fps or source.fps, screen=args.screen,
+                       fullscreen=args.windowed is None, window_size=args.windowed) as sink:
+            progress = None
+            if not sink.realtime and not args.quiet:
+                from tqdm import tqdm
+
+                bar = tqdm(total=source.n_frames, unit="frame", desc="play", dynamic_ncols=True)
+
+                def progress(done, total):
+                    if total is not None and bar.total != total:
+                        bar.total = total
+                    bar.update(done - bar.n)
+            cache = None if args.no_cache else (args.cache or True)
+            player = Player(comp, source, sink, fps=args.fps, iterations=args.iterations,
+                            cache=cache, progress=progress, overlay=args.overlay)
+            try:
+                player.run()
+            except KeyboardInterrupt:  # Ctrl+C ends a live show; the summary still counts
+                print("interrupted", file=sys.stderr)
+            finally:
+                if bar is not None:
+                    bar.close()
+    stats = player.stats
+    print(stats.summary())
+    if args.stats:
+        print(f"wrote {stats.write_json(args.stats)}")
+    return 0
+
+
+
+# --------------------------------------------------------------------------- demo
+def _add_demo(sub):
+    p = sub.add_parser("demo", help="the whole story on the built-in virtual cubicle: calibrate, "
+                       "compensate photographs and a text slide, write pictures and a table")
+    p.add_argument("-o", "--output", default="demo_out", help="output folder (default demo_out)")
+    p.add_argument("--scene", default="cubicle", help="simulator preset (default cubicle)")
+    p.add_argument("--methods", default="ycbcr,rgb,wiener",
+                   help="compensation methods compared with geometry only (default ycbcr,rgb,wiener)")
+    p.add_argument("--seed", type=int, default=0, help="simulator noise seed (default 0)")
+    p.set_defaults(func=cmd_demo)
+
+
+def cmd_demo(args) -> int:
+    import time
+
+    from .demo import run_demo
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    bars: dict = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if args.quiet:
+            return
+        from tqdm import tqdm
+
+        bar = bars.get(stage)
+        if bar is None:
+            for other in bars.values():
+                other.close()
+            bar = bars[stage] = tqdm(total=total, desc=f"{stage:10s}", unit="capture",
+                                     dynamic_ncols=True, leave=True)
+        bar.total = max(total, done)
+        bar.update(done - bar.n)
+
+    def step(msg: str) -> None:
+        for bar in bars.values():
+            bar.close()
+        if not args.quiet:
+            print(msg, flush=True)
+
+    t0 = time.perf_counter()
+    result = run_demo(args.output, preset=args.scene, methods=methods, seed=args.seed,
+                      progress=progress, step=step)
+    print()
+    print(result["markdown"])
+    print(f"backend: {result['backend']}; done in {time.perf_counter() - t0:.0f} s. Files:")
+    for f in result["files"]:
+        print(f"  {f}")
+    return 0
+
+
 # --------------------------------------------------------------------------- main
-COMMANDS = [_add_info, _add_simulate]
+COMMANDS = [_add_info, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_demo]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -123,7 +123,14 @@ class Calibration:
         w, h = size
         if w <= 0 or h <= 0:
             raise InputError(f"display size must be positive (width, height); got {size}")
-        return largest_inscribed_rect(self.lit_polygon_cam, w / h, self.camera_size, margin)
+        # The search scans every camera pixel (~0.1 s): a video asks this for every frame, so
+        # remember the answer per aspect, margin and outline (the key changes if the outline does).
+        key = (w / h, float(margin), self.lit_polygon_cam.tobytes(), tuple(self.camera_size))
+        cache = self.__dict__.setdefault("_rect_cache", {})
+        if key not in cache:
+            cache[key] = largest_inscribed_rect(self.lit_polygon_cam, w / h, self.camera_size,
+                                                margin)
+        return cache[key]
 
     def kernel_at(self, x: float, y: float) -> np.ndarray:
         """(k, k) float32 unit-sum gather kernel at projector pixel (x, y) (nearest pixel);

@@ -1,0 +1,729 @@
+"""The frame loop: source → compensate → sink, with explicit stages and a documented drop policy.
+
+Stages and threads
+------------------
+::
+
+    decoder thread                 bounded queue              main thread
+    source.read() ──► Frame ──►  [ maxsize = queue_size ]  ──► compensate ──► overlay ──► sink.write
+    (paced to fps for a file                                   (GL warp + CL solve: the GL and CL
+     shown in real time)                                        contexts live on this thread)
+
+Nothing is shared between the two threads except the queue and a few counters each written by
+one thread only; in particular there is no "latest frame" attribute that one thread overwrites
+and another reads.
+
+Drop policy
+-----------
+*Realtime* (a live source such as a camera, or any source shown in the projector window):
+the queue holds ``queue_size`` frames (default 1). When it is full the decoder removes the
+oldest queued frame and counts it in ``stats.dropped`` before adding the new one, so the
+solver always gets the newest frame, frames keep their capture order (the queue is FIFO and
+only the decoder removes from its head when dropping), and the source never waits. The
+per-frame iteration budget adapts to hold the target frame rate (:class:`IterationBudget`).
+
+*File rendering* (a file or memory source into a file sink): the decoder blocks on a full
+queue, so every frame is compensated and written, in order, with the full iteration budget.
+
+Still pictures (an image, a folder of slides) need no decoder: the current slide is refined
+in short chunks (warm-started from the previous chunk) until the solver converges, the result
+is cached on disk (:class:`~rtdefocus.stream.cache.SlideCache`) and the next slides are
+compensated ahead while the presenter talks, so switching is instant.
+
+Keys (window): space pause, ←/→ previous/next slide, ``c`` compensation on/off (A/B),
+``g`` geometry only, ``s`` stats overlay, ``q``/Esc quit — see :class:`KeyDispatcher`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..imageio import fit_image
+from .sinks import Sink
+from .sources import Frame, SlidesSource, Source
+from .stats import LoopStats, Series
+
+log = logging.getLogger(__name__)
+
+#: Display modes: compensated, geometry correction only, plain projector (letterboxed input).
+MODES = ("full", "geometry", "off")
+
+#: Key name -> action. Page Up/Down (presentation clickers) arrive as left/right.
+DEFAULT_KEYMAP = {
+    "space": "pause", "left": "previous", "right": "next", "c": "compensation",
+    "g": "geometry", "s": "stats", "q": "quit", "escape": "quit", "close": "quit",
+}
+
+ProgressFn = Callable[[int, "int | None"], None]
+
+
+@dataclass
+class Controls:
+    """What the viewer asked for; changed only through :class:`KeyDispatcher` (main thread)."""
+
+    paused: bool = False
+    mode: str = "full"
+    overlay: bool = False
+    quit: bool = False
+    step: int = 0          # pending slide navigation, consumed by the player
+    version: int = 0       # bumped on every change, so the player knows to redraw
+
+
+class KeyDispatcher:
+    """Turns key names into changes of :class:`Controls`.
+
+    ``c`` toggles between ``full`` and ``off`` (what the audience would see without
+    rtdefocus); ``g`` toggles between ``geometry`` and ``full``.
+    """
+
+    def __init__(self, controls: Controls, keymap: dict[str, str] | None = None):
+        self.controls = controls
+        self.keymap = dict(DEFAULT_KEYMAP if keymap is None else keymap)
+
+    def dispatch(self, key: str) -> str | None:
+        """Apply ``key``; return the action taken, or None for an unmapped key."""
+        action = self.keymap.get(key)
+        c = self.controls
+        if action is None:
+            return None
+        if action == "pause":
+            c.paused = not c.paused
+        elif action == "previous":
+            c.step -= 1
+        elif action == "next":
+            c.step += 1
+        elif action == "compensation":
+            c.mode = "off" if c.mode == "full" else "full"
+        elif action == "geometry":
+            c.mode = "full" if c.mode == "geometry" else "geometry"
+        elif action == "stats":
+            c.overlay = not c.overlay
+        elif action == "quit":
+            c.quit = True
+        else:
+            raise InputError(f"unknown key action {action!r} for key {key!r}")
+        c.version += 1
+        log.debug("key %r -> %s (%s)", key, action, c)
+        return action
+
+
+class IterationBudget:
+    """Solver iterations per frame that hold a target frame period.
+
+    After every frame, the measured seconds per iteration and the rest of the frame's time
+    (warp, transfers, overlay, present) update exponential moving averages; the budget is the
+    number of iterations that fits in what is left of the period, clamped to
+    ``[minimum, maximum]`` and allowed to grow by at most half per frame (a slow frame is
+    answered at once, a fast one cautiously).
+    """
+
+    def __init__(self, fps: float, *, initial: int = 2, minimum: int = 1, maximum: int = 20,
+                 smoothing: float = 0.3):
+        if not fps or fps <= 0:
+            raise InputError(f"target fps must be positive; got {fps}")
+        if not 1 <= minimum <= maximum:
+            raise InputError(f"need 1 <= minimum <= maximum iterations; got {minimum}, {maximum}")
+        self.period = 1.0 / fps
+        self.minimum, self.maximum = int(minimum), int(maximum)
+        self.iterations = int(min(max(initial, minimum), maximum))
+        self.alpha = smoothing
+        self.per_iteration: float | None = None
+        self.overhead: float | None = None
+
+    def _ema(self, old: float | None, new: float) -> float:
+        return new if old is None else (1 - self.alpha) * old + self.alpha * new
+
+    def update(self, frame_seconds: float, solve_seconds: float, iterations: int) -> int:
+        """Record one frame; return the budget for the next one."""
+        if iterations > 0:
+            self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
+        self.overhead = self._ema(self.overhead, max(0.0, frame_seconds - solve_seconds))
+        if self.per_iteration:
+            fit = (self.period - self.overhead) / self.per_iteration
+            grow = max(self.iterations + 1, math.ceil(self.iterations * 1.5))
+            n = min(int(fit) if math.isfinite(fit) else self.maximum, grow)
+            self.iterations = int(min(max(n, self.minimum), self.maximum))
+        return self.iterations
+
+
+def draw_overlay(frame: np.ndarray, lines: list[str]) -> np.ndarray:
+    """A copy of ``frame`` with ``lines`` of text at the top left (white on a dark outline)."""
+    import cv2
+
+    out = np.ascontiguousarray(frame).copy()
+    h = out.shape[0]
+    scale = max(0.35, h / 1400)
+    thick = max(1, round(scale * 2))
+    step = int(30 * scale) + 6
+    for i, text in enumerate(lines):
+        org = (8, 8 + step * (i + 1) - 6)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return out
+
+
+class _End:
+    """Queue marker: the source is exhausted."""
+
+
+class _Failure:
+    """Queue marker: the decoder failed; the main thread re-raises ``exc``."""
+
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+_END = _End()
+
+
+@dataclass
+class _Work:
+    """A still picture being refined: its slide index and what was done so far."""
+
+    index: int
+    iterations: int = 0
+    started: bool = False      # a chunk ran: the next continues from its P (warm start)
+    done: bool = False
+    last_out: np.ndarray | None = None
+
+
+class Player:
+    """Runs one source through a Compensator into one sink.
+
+    Parameters
+    ----------
+    compensator : rtdefocus.Compensator
+        Anything with ``compensate(image, *, iterations, warm_start)``, ``warp(image)``,
+        ``last_info`` and ``projector_size``.
+    source : Source
+    sink : Sink
+    fps : float, optional
+        Target frame rate of realtime playback (default: the source's, else 30). Also the
+        pace a video file is played at in the window.
+    iterations : int, optional
+        Fixed solver iterations per frame. Default: adaptive (:class:`IterationBudget`) for
+        realtime playback; the Compensator's own budget for file rendering; stills refine
+        until converged.
+    live : bool, optional
+        Drop stale frames instead of waiting (default: the source is live or the sink is
+        realtime).
+    queue_size : int, optional
+        Frames between decoder and solver (default 1 when live, 4 otherwise).
+    cache : SlideCache, path, True or None
+        Where compensated stills are kept across runs: a :class:`SlideCache`, a cache root
+        folder, True for the default folder, or None (no disk cache). A path or True keys the
+        cache on ``compensator.calib`` and :meth:`settings`.
+    progress : callable(done, total), optional
+        Called after each frame written (``total`` None when unknown): the CLI's progress bar.
+    overlay : bool
+        Start with the stats overlay on.
+    max_iterations : int, optional
+        Upper bound of the adaptive budget (default: the Compensator's ``iterations``, else 20).
+    refine_tol : float
+        A still is converged when a chunk of iterations lowers the distance by less than this
+        fraction per iteration (or the solver reports convergence).
+    refine_max : int, optional
+        Iteration cap per still (default 10 × ``max_iterations``).
+    ahead : int
+        Slides compensated ahead of the current one while the show is idle.
+
+    Notes
+    -----
+    Call :meth:`run` on the thread that owns the Compensator's GL/CL contexts (normally the
+    main thread). The returned :class:`LoopStats` holds the run's summary.
+    """
+
+    def __init__(self, compensator, source: Source, sink: Sink, *, fps: float | None = None,
+                 iterations: int | None = None, live: bool | None = None,
+                 queue_size: int | None = None, cache=None, progress: ProgressFn | None = None,
+                 overlay: bool = False, max_iterations: int | None = None, refine_tol: float = 2e-4,
+                 refine_max: int | None = None, ahead: int = 2, keymap: dict[str, str] | None = None):
+        if iterations is not None and iterations < 0:
+            raise InputError(f"iterations must be >= 0; got {iterations}")
+        if fps is not None and fps <= 0:
+            raise InputError(f"fps must be positive; got {fps}")
+        self.comp, self.source, self.sink = compensator, source, sink
+        self.projector_size = tuple(compensator.projector_size)
+        self.fps = float(fps or source.fps or 30.0)
+        self.iterations = iterations
+        self.live = bool(source.live or sink.realtime) if live is None else bool(live)
+        self.queue_size = int(queue_size or (1 if self.live else 4))
+        if self.queue_size < 1:
+            raise InputError(f"queue_size must be >= 1; got {queue_size}")
+        self.progress = progress
+        self.max_iterations = int(max_iterations or getattr(compensator, "iterations", 0) or 20)
+        self.refine_tol = float(refine_tol)
+        self.refine_max = int(refine_max or 10 * self.max_iterations)
+        self.ahead = int(ahead)
+        self.cache = self._make_cache(cache)
+        self.controls = Controls(overlay=overlay)
+        self.dispatcher = KeyDispatcher(self.controls, keymap)
+        self.budget: IterationBudget | None = None
+        if iterations is None and sink.realtime:
+            self.budget = IterationBudget(self.fps, maximum=self.max_iterations)
+        self.stats = LoopStats(source.describe(), sink.describe())
+        self._stop = threading.Event()
+        self._hold = threading.Event()       # set while a paced (file) source should wait
+        self._last_index = -1
+        self._work: _Work | None = None
+
+    def settings(self) -> dict:
+        """What changes a compensated still: the slide cache keys on it (with the calibration)."""
+        from .. import __version__
+
+        comp = self.comp
+        names = ("method", "solver_name", "weights", "headroom", "tol", "backend")
+        return {"compensator": {n: getattr(comp, n, None) for n in names},
+                "iterations": self.iterations, "refine_tol": self.refine_tol,
+                "refine_max": self.refine_max, "rtdefocus": __version__}
+
+    def _make_cache(self, cache):
+        from .cache import SlideCache, calibration_fingerprint
+
+        if cache is None or cache is False or isinstance(cache, SlideCache):
+            return cache or None
+        calib = getattr(self.comp, "calib", None)
+        if calib is None:
+            raise InputError("a slide cache needs the Compensator's calibration (comp.calib)")
+        root = None if cache is True else cache
+        return SlideCache(calibration_fingerprint(calib), self.settings(), root=root)
+
+    # ------------------------------------------------------------------ public
+    def run(self) -> LoopStats:
+        """Play the source to the end (or until quit); return the run's statistics."""
+        log.info("playing %s -> %s (%s, %s)", self.source.describe(), self.sink.describe(),
+                 "live: drop stale frames" if self.live else "every frame",
+                 f"{self.iterations} iterations" if self.iterations is not None else
+                 (f"adaptive budget at {self.fps:.3g} fps" if self.budget else "full budget"))
+        try:
+            if self.source.still and isinstance(self.source, SlidesSource):
+                self._run_still()
+            else:
+                self._run_sequence()
+        finally:
+            self._stop.set()
+            self.stats.finish()
+            if self.budget is not None:
+                self.stats.budget = self.budget.iterations
+        log.debug("%s", self.stats.summary())
+        return self.stats
+
+    # ------------------------------------------------------------------ keys
+    def _handle_keys(self) -> None:
+        for key in self.sink.poll():
+            self.dispatcher.dispatch(key)
+
+    # ------------------------------------------------------------------ rendering
+    def _compensate(self, image: np.ndarray, iterations: int | None, warm_start: bool) -> np.ndarray:
+        t0 = time.perf_counter()
+        out = self.comp.compensate(image, iterations=iterations, warm_start=warm_start)
+        dt = time.perf_counter() - t0
+        info = getattr(self.comp, "last_info", None) or {}
+        st = self.stats
+        st.add("compensate", dt)
+        for stage, sec in (info.get("seconds") or {}).items():
+            if stage != "total":
+                st.add(stage, sec)
+        st.iterations.add(info.get("iterations", iterations or 0))
+        dist = info.get("distances")
+        if dist:
+            st.residual = float(dist[-1])
+        return out
+
+    def _render(self, image: np.ndarray, *, iterations: int | None = None,
+                warm_start: bool = True) -> np.ndarray:
+        """The frame for the projector in the current mode (full / geometry / off)."""
+        mode = self.controls.mode
+        if mode == "off":
+            return fit_image(image, self.projector_size)
+        if mode == "geometry":
+            t0 = time.perf_counter()
+            out = self.comp.warp(image)
+            self.stats.add("warp", time.perf_counter() - t0)
+            return out
+        return self._compensate(image, iterations, warm_start)
+
+    def _frame_iterations(self) -> int | None:
+        if self.iterations is not None:
+            return self.iterations
+        if self.budget is not None:
+            return self.budget.iterations
+        return None  # the Compensator's own budget
+
+    def _present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+        st = self.stats
+        if self.controls.overlay:
+            out = draw_overlay(out, st.overlay_lines(self.controls.mode, self.controls.paused))
+        t0 = time.perf_counter()
+        self.sink.write(out, index)
+        t1 = time.perf_counter()
+        st.add("present", t1 - t0)
+        st.add("frame", t1 - t_start)
+        if t_read is not None:
+            st.add("latency", t1 - t_read)
+        st.frame_out()
+
+    def _direct_geometry(self) -> bool:
+        """Geometry-only mode into a window of the projector's size, no overlay: the warp shader
+        can render straight into the window (no read-back, no second upload)."""
+        calib = getattr(self.comp, "calib", None)
+        return (self.controls.mode == "geometry" and not self.controls.overlay and calib is not None
+                and getattr(self.sink, "can_warp", None) is not None and self.sink.can_warp(calib))
+
+    def _present_warped(self, image: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+        self.sink.write_warped(image, index, self.comp.calib)
+        t1 = time.perf_counter()
+        st = self.stats
+        st.add("warp+present", t1 - t_start)
+        st.add("frame", t1 - t_start)
+        if t_read is not None:
+            st.add("latency", t1 - t_read)
+        st.frame_out()
+
+    def _update_budget(self, t_start: float) -> None:
+        if self.budget is None or self.controls.mode != "full":
+            return
+        info = getattr(self.comp, "last_info", None) or {}
+        sec = info.get("seconds") or {}
+        its = int(info.get("iterations", 0) or 0)
+        solve = float(sec.get("solve", 0.0)) if "solve" in sec else self.stats.stages["compensate"].last
+        self.budget.update(time.perf_counter() - t_start, solve, its)
+
+    def _idle(self, seconds: float = 0.01) -> None:
+        window = getattr(self.sink, "window", None)
+        if window is not None and hasattr(window, "wait"):
+            window.wait(seconds)
+        else:
+            time.sleep(seconds)
+
+    # ------------------------------------------------------------------ sequences
+    def _decoder(self, q: queue.Queue) -> None:
+        """Decoder thread: read, pace, enqueue (drop-oldest when live, blocking otherwise)."""
+        src, st = self.source, self.stats
+        read = st.stages["read"]   # created before the thread starts: no dict resize here
+        pace = (1.0 / self.fps) if (self.sink.realtime and not src.live) else None
+        t_next: float | None = None
+        try:
+            while not self._stop.is_set():
+                if pace is not None:
+                    if self._hold.is_set():          # paused file playback: stop reading
+                        self._stop.wait(0.02)
+                        t_next = None
+                        continue
+                    now = time.perf_counter()
+                    if t_next is None or now - t_next > pace:
+                        t_next = now                 # (re)start the clock; never burst to catch up
+                    elif t_next > now and self._stop.wait(t_next - now):
+                        break
+                    t_next += pace
+                t0 = time.perf_counter()
+                frame = src.read()
+                if frame is None:
+                    break
+                read.add(time.perf_counter() - t0)
+                st.frames_in += 1
+                if self.live:
+                    self._put_latest(q, frame)
+                else:
+                    self._put_blocking(q, frame)
+        except BaseException as exc:  # handed to the main thread, which re-raises it
+            self._put_blocking(q, _Failure(exc))
+            return
+        self._put_blocking(q, _END)
+
+    def _put_latest(self, q: queue.Queue, item) -> None:
+        while True:
+            try:
+                q.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    stale = q.get_nowait()   # the oldest waiting frame: superseded, drop it
+                except queue.Empty:
+                    continue
+                if isinstance(stale, Frame):
+                    self.stats.dropped += 1
+
+    def _put_blocking(self, q: queue.Queue, item) -> None:
+        while not self._stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return
+            except queue.Full:
+                continue
+
+    def _run_sequence(self) -> None:
+        self.stats.stages["read"] = Series()  # created here: the decoder never resizes the dict
+        q: queue.Queue = queue.Queue(maxsize=self.queue_size)
+        thread = threading.Thread(target=self._decoder, args=(q,), name="rtdefocus-decode",
+                                  daemon=True)
+        thread.start()
+        held: Frame | None = None
+        shown_version = -1
+        try:
+            while True:
+                self._handle_keys()
+                c = self.controls
+                if c.quit:
+                    break
+                if c.paused and self.sink.realtime:
+                    self._hold.set()
+                    if held is not None:
+                        shown_version = self._refresh_held(held, shown_version)
+                    else:
+                        self._idle(0.02)
+                    continue
+                self._hold.clear()
+                self._work = None
+                try:
+                    item = q.get(timeout=0.05 if self.sink.interactive else 1.0)
+                except queue.Empty:
+                    continue
+                if item is _END:
+                    break
+                if isinstance(item, _Failure):
+                    raise item.exc
+                frame: Frame = item
+                if frame.index <= self._last_index:  # the queue is FIFO; this would be a bug
+                    raise RuntimeError(f"frame {frame.index} after {self._last_index}: reordered")
+                self._last_index = frame.index
+                t0 = time.perf_counter()
+                if self._direct_geometry():
+                    self._present_warped(frame.image, frame.index, frame.t_read, t0)
+                else:
+                    out = self._render(frame.image, iterations=self._frame_iterations())
+                    self._present(out, frame.index, frame.t_read, t0)
+                self._update_budget(t0)
+                held, shown_version = frame, c.version
+                if self.progress:
+                    self.progress(self.stats.frames_out, self.source.n_frames)
+        finally:
+            self._stop.set()
+            thread.join(timeout=10)
+            if thread.is_alive():
+                log.warning("decoder thread did not stop within 10 s (a blocking camera read?)")
+
+    def _refresh_held(self, held: Frame, shown_version: int) -> int:
+        """Paused video: keep refining the held frame until converged (it continues from the P
+        just shown); redraw when a key changes the mode or the overlay."""
+        c = self.controls
+        w = self._work
+        if w is None or w.index != held.index:
+            w = self._work = _Work(held.index, started=True)
+        if c.mode == "full" and not w.done:
+            t0 = time.perf_counter()
+            out, _ = self._refine_step(held.index, held.image)
+            self._present(out, held.index, None, t0)
+            return c.version
+        if c.version != shown_version:
+            t0 = time.perf_counter()
+            out = w.last_out if (c.mode == "full" and w.last_out is not None) else self._render(
+                held.image, iterations=self._frame_iterations())
+            self._present(out, held.index, None, t0)
+            return c.version
+        self._idle(0.02)
+        return shown_version
+
+    # ------------------------------------------------------------------ stills
+    def _chunk(self) -> int:
+        if self.budget is not None:
+            return max(1, self.budget.iterations)
+        return self.max_iterations
+
+    def _refine_step(self, index: int, image: np.ndarray) -> tuple[np.ndarray, bool]:
+        """One chunk of iterations on still ``index``; returns (frame, converged).
+
+        The first chunk of a new still starts from its target (``warm_start=False``), so the
+        result does not depend on what was shown before; later chunks continue from the
+        previous one's P.
+        """
+        w = self._work
+        if w is None or w.index != index:
+            w = self._work = _Work(index)
+        if w.done and w.last_out is not None:
+            return w.last_out, True
+        if self.iterations is not None:          # a fixed budget: exactly that, from the target
+            w.last_out, w.done = self._compensate(image, self.iterations, warm_start=False), True
+            return w.last_out, True
+        t0 = time.perf_counter()
+        n = min(self._chunk(), max(1, self.refine_max - w.iterations))
+        out = self._compensate(image, n, warm_start=w.started)
+        w.started = True
+        self._update_budget(t0)
+        info = getattr(self.comp, "last_info", None) or {}
+        its = int(info.get("iterations", n) or 0)
+        dist = info.get("distances") or []
+        w.iterations += its
+        # Converged: the solver says so, stopped early, hit the cap, or barely moves any more.
+        done = bool(info.get("converged")) or its < n or w.iterations >= self.refine_max
+        if not done and len(dist) >= 2 and dist[0] > 0:
+            per_iteration = (float(dist[0]) - float(dist[-1])) / float(dist[0]) / max(its, 1)
+            done = per_iteration < self.refine_tol
+        w.last_out, w.done = out, done
+        if done:
+            log.debug("still %d converged after %d iterations", index, w.iterations)
+        return out, done
+
+    def compensate_still(self, image: np.ndarray) -> np.ndarray:
+        """The finished compensation of a still picture, as a slide shows it once refined.
+
+        Starts from the picture's own target (not the previous frame), then runs chunks of
+        iterations until the solver converges (see ``refine_tol``, ``refine_max``), or exactly
+        ``iterations`` when the player has a fixed budget.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 RGB
+
+        Returns
+        -------
+        (Hp, Wp, 3) uint8
+        """
+        if self.iterations is not None:
+            return self._compensate(image, self.iterations, warm_start=False)
+        self._work = None
+        while True:
+            out, done = self._refine_step(-1, image)
+            if done:
+                self._work = None
+                return out
+
+    def _run_still(self) -> None:
+        src: SlidesSource = self.source  # type: ignore[assignment]
+        if self.sink.realtime:
+            self._run_show(src)
+            return
+        store = _SlideStore(src, self.cache)
+        for i in range(src.n_frames):
+            if self._stop.is_set():
+                break
+            t0 = time.perf_counter()
+            image = src.load(i)
+            self.stats.frames_in += 1
+            if self.controls.mode != "full":
+                out = self._render(image)
+            else:
+                out = store.get(i)
+                if out is None:
+                    out = self.compensate_still(image)
+                    store.put(i, out)
+            self._present(out, i, None, t0)
+            if self.progress:
+                self.progress(self.stats.frames_out, src.n_frames)
+
+    def _run_show(self, src: SlidesSource) -> None:
+        """Interactive slideshow in the window: refine, cache, compensate ahead, navigate."""
+        c = self.controls
+        n = src.n_frames
+        store = _SlideStore(src, self.cache, keep=max(4, 2 * self.ahead + 2))
+        current, shown, last_overlay = 0, None, 0.0
+        seen: set[int] = set()
+        while True:
+            self._handle_keys()
+            if c.quit:
+                break
+            if c.step:
+                current = min(max(current + c.step, 0), n - 1)
+                c.step = 0
+            if current not in seen:
+                seen.add(current)
+                self.stats.frames_in += 1
+            want = (current, c.mode, c.version)
+            t0 = time.perf_counter()
+            if c.mode != "full":
+                if shown != want:
+                    if self._direct_geometry():
+                        self._present_warped(src.load(current), current, None, t0)
+                    else:
+                        self._present(self._render(src.load(current)), current, None, t0)
+                    shown = want
+                else:
+                    self._idle(0.02)
+                continue
+            result = store.get(current)
+            if result is None and not c.paused:
+                # Refine the current slide, showing each chunk: sharpens in front of the audience.
+                image = src.load(current)
+                out, done = self._refine_step(current, image)
+                if done:
+                    self._work = None
+                    store.put(current, out)
+                self._present(out, current, None, t0)
+                shown = want
+                continue
+            if result is None and self._work is not None and self._work.index == current:
+                result = self._work.last_out            # paused mid-refinement: hold it
+            now = time.perf_counter()
+            if result is not None and (shown != want or (c.overlay and now - last_overlay > 0.5)):
+                self._present(result, current, None, t0)
+                shown, last_overlay = want, now
+                continue
+            # Idle: compensate the next slides ahead, one chunk at a time so keys stay live.
+            nxt = None if c.paused else next(
+                (i for i in range(current + 1, min(n, current + 1 + self.ahead)) if not store.has(i)), None)
+            if nxt is None:
+                self._idle(0.02)
+                continue
+            out, done = self._refine_step(nxt, src.load(nxt))
+            if done:
+                self._work = None
+                store.put(nxt, out)
+
+
+class _SlideStore:
+    """Compensated slides: a few in memory (LRU), all in the disk cache when one is given.
+    Each slide's presence on disk is looked up once (hashing a slide is not free)."""
+
+    def __init__(self, src: SlidesSource, cache=None, keep: int = 4):
+        self.src, self.cache, self.keep = src, cache, keep
+        self.mem: OrderedDict[int, np.ndarray] = OrderedDict()
+        self.on_disk: dict[int, bool] = {}
+
+    def _remember(self, i: int, out: np.ndarray) -> None:
+        self.mem[i] = out
+        self.mem.move_to_end(i)
+        while len(self.mem) > self.keep:
+            self.mem.popitem(last=False)
+
+    def has(self, i: int) -> bool:
+        if i in self.mem:
+            return True
+        if self.cache is None:
+            return False
+        if i not in self.on_disk:
+            self.on_disk[i] = self.cache.path(self.src.load(i)).is_file()
+        return self.on_disk[i]
+
+    def get(self, i: int) -> np.ndarray | None:
+        if i in self.mem:
+            self.mem.move_to_end(i)
+            return self.mem[i]
+        if self.cache is None or self.on_disk.get(i) is False:
+            return None
+        hit = self.cache.get(self.src.load(i))
+        self.on_disk[i] = hit is not None
+        if hit is not None:
+            self._remember(i, hit)
+        return hit
+
+    def put(self, i: int, out: np.ndarray) -> None:
+        self._remember(i, out)
+        if self.cache is not None:
+            self.cache.put(self.src.load(i), out)
+            self.on_disk[i] = True
+
+
+def play(compensator, source: Source, sink: Sink, **options) -> LoopStats:
+    """Run ``source`` through ``compensator`` into ``sink`` (see :class:`Player` for options);
+    closes neither. Returns the run's :class:`LoopStats`."""
+    return Player(compensator, source, sink, **options).run()

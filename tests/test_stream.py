@@ -1,0 +1,538 @@
+"""The frame loop (rtdefocus.stream): file rendering keeps every frame in order and equals the
+Compensator frame by frame; live sources drop stale frames without reordering and keep up; the
+adaptive budget; memory stays flat over 500 frames; slides (natural order, refine until
+converged, disk cache); key handling; statistics; the `play` command."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import os
+import threading
+import time
+import tracemalloc
+
+import cv2
+import numpy as np
+import pytest
+
+import rtdefocus as rd
+from rtdefocus import cli
+from rtdefocus.calib.file import Calibration
+from rtdefocus.errors import CaptureError, InputError
+from rtdefocus.imageio import fit_image, read_image, write_image
+from rtdefocus.stream import (
+    ArraySource,
+    Controls,
+    ImageSequenceSink,
+    IterationBudget,
+    KeyDispatcher,
+    NullSink,
+    Player,
+    SlideCache,
+    SlidesSource,
+    VideoFileSink,
+    VideoSource,
+    calibration_fingerprint,
+    natural_key,
+    open_sink,
+    open_source,
+    play,
+)
+from rtdefocus.stream.sinks import Sink
+from rtdefocus.stream.stats import WINDOW, LoopStats, Series
+
+PROJ = (64, 48)  # small projector: the loop's properties do not depend on size
+
+
+@functools.cache
+def virtual_calibration(preset: str = "cubicle"):
+    """The calibration of a small virtual set-up, built from the simulator's truth (two walls,
+    a fold, the true kernel field): what `rtdefocus calibrate` would give, without the wait.
+    The blur is scaled up so that a 64-px-wide projector blurs by 1.5..3 px, as an 800-px one
+    does by 1.5..6 px."""
+    from rtdefocus import sim
+    from rtdefocus.eval import oracle_calibration
+
+    scene = dataclasses.replace(sim.PRESETS[preset], blur_range_px=(19.0, 38.0))
+    return oracle_calibration(sim.VirtualProCam(scene, projector_size=PROJ, camera_size=(96, 72)))
+
+
+@pytest.fixture(scope="module")
+def calib():
+    return virtual_calibration()
+
+
+@pytest.fixture(scope="module")
+def comp(calib):
+    return rd.Compensator(calib)
+
+
+def synthetic_frames(n, size=PROJ, seed=0):
+    """Frames that differ from each other (a moving bar over noise), so order is visible."""
+    w, h = size
+    rng = np.random.default_rng(seed)
+    base = rng.integers(40, 200, (h, w, 3), dtype=np.uint8)
+    out = []
+    for i in range(n):
+        f = base.copy()
+        x = (3 * i) % w
+        f[:, x:x + 4] = (255, 230 - 7 * i % 200, 20 + 9 * i % 200)
+        f[(2 * i) % h, :] = 0
+        out.append(f)
+    return out
+
+
+class RecordingSink(Sink):
+    """Keeps what it is given (tests only); optionally realtime/interactive with scripted keys."""
+
+    def __init__(self, realtime=False, keys=None, on_write=None):
+        self.realtime = realtime
+        self.interactive = keys is not None
+        self.frames, self.indices, self.times = [], [], []
+        self._keys = list(keys or [])
+        self._pending: list[str] = []
+        self.on_write = on_write
+
+    def write(self, frame, index):
+        self.frames.append(frame.copy())
+        self.indices.append(index)
+        self.times.append(time.perf_counter())
+        if self._keys:                       # one scripted key after each presented frame
+            self._pending.append(self._keys.pop(0))
+        if self.on_write:
+            self.on_write(self)
+
+    def poll(self):
+        out, self._pending = self._pending, []
+        return out
+
+
+def max_abs(a, b):
+    return int(np.abs(a.astype(np.int16) - b.astype(np.int16)).max())
+
+
+# --------------------------------------------------------------------------- file rendering
+def test_video_file_to_files_every_frame_in_order_equals_compensate(tmp_path, calib):
+    n = 12
+    frames = synthetic_frames(n)
+    video = tmp_path / "in.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, PROJ)
+    for f in frames:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    # The reference: decode the same file independently, compensate frame after frame with a
+    # fresh Compensator (same warm-start chain, full budget).
+    cap = cv2.VideoCapture(str(video))
+    decoded = []
+    while True:
+        ok, bgr = cap.read()
+        if not ok:
+            break
+        decoded.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+    assert len(decoded) == n
+    ref_comp = rd.Compensator(calib)
+    expected = [ref_comp.compensate(f) for f in decoded]
+
+    comp = rd.Compensator(calib)          # fresh: the solver adapts its step across calls
+    done = []
+    with VideoSource(video) as src, ImageSequenceSink(tmp_path / "out") as sink:
+        stats = play(comp, src, sink, progress=lambda d, t: done.append((d, t)))
+    assert stats.frames_in == stats.frames_out == n and stats.dropped == 0
+    assert done[-1] == (n, n) and [d for d, _ in done] == list(range(1, n + 1))
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == [f"frame_{i:06d}.png" for i in range(n)]
+    for i in range(n):
+        got = read_image(tmp_path / "out" / names[i])
+        assert got.shape == (PROJ[1], PROJ[0], 3)
+        assert max_abs(got, expected[i]) <= 1, f"frame {i} differs from Compensator.compensate"
+        # and not equal to its neighbour's compensation: the order is really checked
+        if i:
+            assert max_abs(got, expected[i - 1]) > 20
+    assert stats.iterations.mean == comp.iterations   # unlimited budget = the Compensator's own
+
+
+def test_video_file_sink_writes_every_frame(tmp_path, comp):
+    frames = synthetic_frames(10)
+    out = tmp_path / "o.mp4"
+    with VideoFileSink(out, fps=20) as sink:
+        stats = play(comp, ArraySource(frames), sink)
+    cap = cv2.VideoCapture(str(out))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == stats.frames_out == 10
+    assert (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))) == PROJ
+    cap.release()
+
+
+# --------------------------------------------------------------------------- live sources
+def test_live_source_faster_than_solver_drops_but_never_reorders(comp):
+    comp.reset()
+    times = []
+    for _ in range(4):                                            # the first includes warm-up
+        comp.compensate(synthetic_frames(1)[0], iterations=20)
+        times.append(comp.last_info["seconds"]["total"])
+    per_frame = float(np.median(times[1:]))
+    n, fps = 120, min(2000.0, 4.0 / per_frame)                    # ~4 frames per solve
+    sink = RecordingSink()
+    t0 = time.perf_counter()
+    stats = play(comp, ArraySource(synthetic_frames(n), fps=fps, live=True), sink, iterations=20)
+    wall = time.perf_counter() - t0
+    assert stats.dropped > 0, "a source 4x faster than the solver must drop frames"
+    assert stats.frames_in == n
+    assert stats.frames_out + stats.dropped == n, "every frame is either shown or counted dropped"
+    assert np.all(np.diff(sink.indices) > 0), "frames reordered"
+    assert sink.indices[-1] >= n - 3, "the loop fell behind the end of the stream"
+    # Keeps up: done about when the source is, and each shown frame is recent.
+    assert wall < n / fps + 10 * per_frame + 0.5
+    assert stats.stages["latency"].percentile(95) < 6 * per_frame + 0.05
+
+
+def test_decoder_error_reaches_the_caller(comp):
+    def frames():
+        yield synthetic_frames(1)[0]
+        raise CaptureError("camera unplugged")
+    with pytest.raises(CaptureError, match="unplugged"):
+        play(comp, ArraySource(frames()), NullSink())
+
+
+def test_iteration_budget_converges_to_what_fits():
+    b = IterationBudget(50.0, maximum=40)          # 20 ms per frame
+    for _ in range(30):                            # 2 ms per iteration + 5 ms of other work
+        n = b.iterations
+        b.update(frame_seconds=5e-3 + n * 2e-3, solve_seconds=n * 2e-3, iterations=n)
+    assert b.iterations == 7                       # (20 - 5) / 2
+    for _ in range(30):                            # the device slows down 3x
+        n = b.iterations
+        b.update(frame_seconds=5e-3 + n * 6e-3, solve_seconds=n * 6e-3, iterations=n)
+    assert b.iterations == 2
+    for _ in range(30):                            # nothing fits: the minimum, never zero
+        b.update(frame_seconds=0.1, solve_seconds=0.09, iterations=b.iterations)
+    assert b.iterations == 1
+    with pytest.raises(InputError):
+        IterationBudget(0)
+
+
+def test_realtime_budget_holds_the_frame_rate(comp):
+    comp.reset()
+    frames = synthetic_frames(1)[0]
+    for _ in range(2):                                            # the first includes warm-up
+        comp.compensate(frames, iterations=10)
+    per_it = comp.last_info["seconds"]["solve"] / 10
+    fps = 1.0 / (12 * per_it + comp.last_info["seconds"]["total"] - 10 * per_it)  # ~12 fit
+    fps = min(fps, 200.0)
+    sink = RecordingSink(realtime=True)
+    src = ArraySource(synthetic_frames(80), fps=fps, live=True)
+    stats = play(comp, src, sink, max_iterations=60)
+    its = stats.iterations.recent()[20:]
+    assert its.min() >= 1 and its.max() <= 60
+    # after settling, the main thread's time per frame is within the period (with slack)
+    frame = stats.stages["frame"].recent()[20:]
+    assert np.median(frame) < 1.5 / fps
+    assert np.median(its) >= 2, "the budget should use the time available"
+
+
+# --------------------------------------------------------------------------- memory
+def test_500_frames_no_memory_growth(comp, capsys):
+    comp.reset()
+    frames = synthetic_frames(8)
+    marks = {}
+
+    def rss_kib():
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") // 1024
+
+    class MarkingSink(Sink):                       # keeps nothing, notes memory at 100 and 500
+        n = 0
+
+        def write(self, frame, index):
+            self.n += 1
+            if self.n in (100, 500):
+                marks[self.n] = (tracemalloc.get_traced_memory()[0], rss_kib())
+
+    def cycle():
+        for i in range(500):
+            yield frames[i % len(frames)]
+
+    tracemalloc.start()
+    try:
+        stats = play(comp, ArraySource(cycle()), MarkingSink(), iterations=2)
+    finally:
+        tracemalloc.stop()
+    assert stats.frames_out == 500
+    py_growth = marks[500][0] - marks[100][0]
+    rss_growth = marks[500][1] - marks[100][1]
+    with capsys.disabled():
+        print(f"\n[memory] frames 100 -> 500: Python heap {py_growth / 1024:+.1f} KiB, "
+              f"RSS {rss_growth:+d} KiB")
+    assert py_growth < 64 * 1024, f"Python heap grew {py_growth} bytes over 400 frames"
+    assert rss_growth < 16 * 1024, f"RSS grew {rss_growth} KiB over 400 frames"
+
+
+# --------------------------------------------------------------------------- slides
+def _slides(folder, names, size=(40, 30)):
+    folder.mkdir(parents=True, exist_ok=True)
+    imgs = {}
+    for k, name in enumerate(names):
+        img = synthetic_frames(1, size=size, seed=k + 1)[0]
+        write_image(folder / name, img)
+        imgs[name] = img
+    return imgs
+
+
+def test_slides_natural_order(tmp_path):
+    _slides(tmp_path, ["s10.png", "s2.png", "S1.jpg"])
+    (tmp_path / "notes.txt").write_text("not a slide")
+    src = open_source(tmp_path)
+    assert isinstance(src, SlidesSource) and src.still
+    assert [p.name for p in src.paths] == ["S1.jpg", "s2.png", "s10.png"]
+    assert sorted(["a10", "a9", "a100"], key=natural_key) == ["a9", "a10", "a100"]
+    assert [f.index for f in src] == [0, 1, 2]
+
+
+class CountingCompensator:
+    """Wraps the real Compensator and counts compensate() calls (a spy, not a stand-in)."""
+
+    def __init__(self, comp):
+        self.comp, self.calls = comp, 0
+
+    def __getattr__(self, name):
+        return getattr(self.comp, name)
+
+    def compensate(self, image, **kw):
+        self.calls += 1
+        return self.comp.compensate(image, **kw)
+
+
+def test_still_refines_until_converged(tmp_path, calib, comp):
+    img = synthetic_frames(1, size=(40, 30), seed=3)[0]
+    write_image(tmp_path / "s.png", img)
+    player = Player(comp, SlidesSource(tmp_path / "s.png"), NullSink())
+    out = player.compensate_still(img)
+    total = player.stats.iterations.total
+    assert total > comp.iterations, "a still gets more than one frame's budget"
+    # the refined still is closer to the optimum than one budget's worth
+    d_refined = comp.last_info["distances"][-1]
+    comp.compensate(img, iterations=comp.iterations, warm_start=False)
+    d_one = comp.last_info["distances"][-1]
+    assert d_refined < d_one
+    # converged: stopped by the tolerance (not the cap), within 1 % of the distance that
+    # 400 iterations reach
+    assert total < player.refine_max
+    comp.compensate(img, iterations=400, warm_start=False)
+    d_best = comp.last_info["distances"][-1]
+    assert d_refined <= 1.01 * d_best + 1e-6 * comp.last_info["distances"][0]
+    assert out.shape == (PROJ[1], PROJ[0], 3)
+
+
+def test_slide_cache_second_show_is_instant(tmp_path, calib):
+    imgs = _slides(tmp_path / "deck", ["a1.png", "a2.png", "a10.png"])
+    spy = CountingCompensator(rd.Compensator(calib))   # fresh, like the reference below
+    with SlidesSource(tmp_path / "deck") as src, ImageSequenceSink(tmp_path / "o1") as sink:
+        s1 = play(spy, src, sink, cache=tmp_path / "cache")
+    first_calls = spy.calls
+    assert s1.frames_out == 3 and first_calls >= 3
+    entries = list((tmp_path / "cache").rglob("*.png"))
+    assert len(entries) == 3
+    spy.calls = 0
+    t0 = time.perf_counter()
+    with SlidesSource(tmp_path / "deck") as src, ImageSequenceSink(tmp_path / "o2") as sink:
+        player = Player(spy, src, sink, cache=tmp_path / "cache")
+        player.run()
+    assert spy.calls == 0 and player.cache.hits == 3, "second show must come from the cache"
+    assert time.perf_counter() - t0 < 2.0
+    for name in ("frame_000000.png", "frame_000001.png", "frame_000002.png"):
+        assert np.array_equal(read_image(tmp_path / "o1" / name), read_image(tmp_path / "o2" / name))
+    # the slide order is natural: output 2 is a10
+    c = rd.Compensator(calib)
+    ref = Player(c, SlidesSource(tmp_path / "deck"), NullSink()).compensate_still(imgs["a10.png"])
+    assert max_abs(read_image(tmp_path / "o1" / "frame_000002.png"), ref) <= 1
+
+
+def test_cache_key_follows_calibration_content_and_settings(tmp_path, calib):
+    img = synthetic_frames(1, seed=5)[0]
+    key = calibration_fingerprint(calib)
+    assert key == calibration_fingerprint(Calibration.load(calib.save(tmp_path / "c.npz")))
+    other = virtual_calibration("pillar")
+    assert calibration_fingerprint(other) != key
+    nudged = dataclasses.replace(calib, psfs=calib.psfs.copy())
+    nudged.psfs[0, 0, 0] += 1e-6                           # any array change is a new key
+    assert calibration_fingerprint(nudged) != key
+    a = SlideCache(key, {"method": "ycbcr"}, root=tmp_path)
+    out = synthetic_frames(1, seed=6)[0]
+    a.put(img, out)
+    assert np.array_equal(a.get(img), out)
+    assert SlideCache(key, {"method": "rgb"}, root=tmp_path).get(img) is None
+    assert SlideCache(calibration_fingerprint(other), {"method": "ycbcr"}, root=tmp_path).get(img) is None
+    img2 = img.copy()
+    img2[0, 0, 0] ^= 1
+    assert a.get(img2) is None
+    a.path(img).write_bytes(b"garbage")                    # a damaged entry is recomputed
+    assert a.get(img) is None and not a.path(img).exists()
+
+
+# --------------------------------------------------------------------------- keys
+def test_key_dispatcher():
+    c = Controls()
+    d = KeyDispatcher(c)
+    assert d.dispatch("c") == "compensation" and c.mode == "off"
+    d.dispatch("c")
+    assert c.mode == "full"
+    d.dispatch("g")
+    assert c.mode == "geometry"
+    d.dispatch("c")
+    assert c.mode == "full"
+    d.dispatch("right"), d.dispatch("right"), d.dispatch("left")
+    assert c.step == 1
+    d.dispatch("space"), d.dispatch("s")
+    assert c.paused and c.overlay
+    assert d.dispatch("x") is None
+    v = c.version
+    d.dispatch("escape")
+    assert c.quit and c.version == v + 1
+
+
+@pytest.mark.timeout(120)
+def test_interactive_show_follows_keys(tmp_path, comp):
+    imgs = _slides(tmp_path / "deck", ["p1.png", "p2.png", "p3.png"])
+    order = [imgs["p1.png"], imgs["p2.png"], imgs["p3.png"]]
+    states = []
+    sink = RecordingSink(realtime=True, keys=["right", "c", "g", "right", "s", "left", "left", "left", "q"])
+    player = Player(comp, SlidesSource(tmp_path / "deck"), sink, iterations=3)
+    sink.on_write = lambda s: states.append((s.indices[-1], player.controls.mode))
+    stats = player.run()
+    assert player.controls.quit
+    shown = dict()
+    for (idx, mode), frame in zip(states, sink.frames, strict=True):
+        shown.setdefault((idx, mode), frame)
+    assert [s[0] for s in states][:2] == [0, 1]
+    # 'c' on slide 1: the plain projector picture (letterboxed input)
+    assert np.array_equal(shown[(1, "off")], fit_image(order[1], PROJ))
+    # 'g': geometry only
+    assert max_abs(shown[(1, "geometry")], comp.warp(order[1])) == 0
+    assert max_abs(shown[(2, "geometry")], comp.warp(order[2])) == 0
+    # never beyond the first slide going back
+    assert min(s[0] for s in states) == 0 and max(s[0] for s in states) == 2
+    # the overlay draws text: the frame after 's' differs from the same slide without it
+    assert stats.frames_out == len(sink.frames)
+
+
+def test_overlay_draws_stats():
+    st = LoopStats()
+    st.add("solve", 0.012)
+    st.iterations.add(7)
+    st.residual = 0.5
+    lines = st.overlay_lines("full", paused=True)
+    assert "dropped 0" in lines[0] and "solve 12.0" in lines[1] and "PAUSED" in lines[2]
+    from rtdefocus.stream import draw_overlay
+    frame = np.zeros((120, 200, 3), np.uint8)
+    out = draw_overlay(frame, lines)
+    assert out.shape == frame.shape and out.max() == 255 and frame.max() == 0
+
+
+# --------------------------------------------------------------------------- stats
+def test_series_mean_p95_constant_memory():
+    s = Series()
+    for v in range(1, 101):
+        s.add(v)
+    assert s.mean == pytest.approx(50.5)
+    assert s.percentile(95) == pytest.approx(np.percentile(np.arange(1, 101), 95))
+    for v in range(WINDOW * 2):
+        s.add(1000 + v)
+    assert s.count == 100 + 2 * WINDOW
+    assert s.recent()[0] == 1000 + WINDOW and s.recent()[-1] == 1000 + 2 * WINDOW - 1
+    assert s._ring.nbytes == WINDOW * 8
+
+
+def test_summary_and_json(tmp_path, comp):
+    stats = play(comp, ArraySource(synthetic_frames(5)), NullSink())
+    text = stats.summary()
+    assert "5 frames out, 5 in, 0 dropped" in text and "solve" in text and "p95" in text
+    data = json.loads(stats.write_json(tmp_path / "s.json").read_text())
+    assert data["frames_out"] == 5 and data["dropped"] == 0
+    assert data["iterations_per_frame"]["mean"] == comp.iterations
+    assert data["stages_ms"]["solve"]["count"] == 5 and data["stages_ms"]["solve"]["p95"] > 0
+
+
+# --------------------------------------------------------------------------- sources, sinks
+def test_open_source_and_sink_dispatch(tmp_path):
+    write_image(tmp_path / "one.png", synthetic_frames(1)[0])
+    assert open_source(tmp_path / "one.png").kind == "image"
+    from rtdefocus.stream.sources import parse_camera
+    assert parse_camera("camera:0") == 0 and parse_camera("camera:rtsp://h/x") == "rtsp://h/x"
+    assert parse_camera("http://cam.local/stream") == "http://cam.local/stream"
+    assert parse_camera("clip.mp4") is None
+    with pytest.raises(InputError, match="not found"):
+        open_source(tmp_path / "missing.mp4")
+    with pytest.raises(InputError, match="no images"):
+        open_source(_empty(tmp_path / "empty"))
+    (tmp_path / "junk.mp4").write_bytes(b"not a video at all")
+    with pytest.raises(InputError, match="cannot open"):
+        VideoSource(tmp_path / "junk.mp4")
+    assert open_sink("null").kind == "null"
+    assert open_sink(tmp_path / "v.mp4").kind == "video file"
+    assert open_sink(tmp_path / "frames").kind == "images"
+    assert open_sink(tmp_path / "x.png").kind == "image"
+
+
+def _empty(p):
+    p.mkdir()
+    return p
+
+
+def test_camera_that_cannot_open_is_a_clear_error(tmp_path):
+    from rtdefocus.stream.sources import CameraSource
+    with pytest.raises(CaptureError, match="cannot open camera"):
+        CameraSource(str(tmp_path / "no_such_stream.mp4"))
+
+
+def test_array_source_live_needs_fps():
+    with pytest.raises(InputError, match="fps"):
+        ArraySource([], live=True)
+
+
+@pytest.mark.timeout(120)
+def test_quit_key_stops_an_endless_live_source(comp):
+    # an endless live source stops on 'q' from the (scripted) viewer
+    def endless():
+        f = synthetic_frames(1)[0]
+        while True:
+            yield f
+    sink = RecordingSink(realtime=True, keys=["s", "q"])
+    stats = play(comp, ArraySource(endless(), fps=200, live=True), sink, iterations=1)
+    assert stats.frames_out == 2 and threading.active_count() < 10
+
+
+# --------------------------------------------------------------------------- CLI
+def test_cli_play_video_to_folder_with_stats(tmp_path, calib, capsys):
+    setup = calib.save(tmp_path / "setup.npz")
+    video = tmp_path / "in.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, PROJ)
+    for f in synthetic_frames(6):
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    rc = cli.main(["-q", "play", str(setup), str(video), "--out", str(tmp_path / "out"),
+                   "--stats", str(tmp_path / "stats.json"), "--iterations", "3"])
+    assert rc == 0
+    assert len(list((tmp_path / "out").glob("frame_*.png"))) == 6
+    data = json.loads((tmp_path / "stats.json").read_text())
+    assert data["frames_out"] == 6 and data["iterations_per_frame"]["mean"] == 3
+    assert "6 frames out" in capsys.readouterr().out
+
+
+def test_cli_play_image_to_image_uses_cache(tmp_path, calib, capsys):
+    setup = calib.save(tmp_path / "setup.npz")
+    write_image(tmp_path / "slide.png", synthetic_frames(1, seed=9)[0])
+    args = ["-q", "play", str(setup), str(tmp_path / "slide.png"), "--out", str(tmp_path / "o.png"),
+            "--cache", str(tmp_path / "cache")]
+    assert cli.main(args) == 0
+    first = read_image(tmp_path / "o.png")
+    assert first.shape == (PROJ[1], PROJ[0], 3)
+    assert len(list((tmp_path / "cache").rglob("*.png"))) == 1
+    assert cli.main(args) == 0
+    assert np.array_equal(read_image(tmp_path / "o.png"), first)
+
+
+def test_cli_play_missing_source_exits_1(tmp_path, calib, capsys):
+    setup = calib.save(tmp_path / "setup.npz")
+    assert cli.main(["play", str(setup), str(tmp_path / "nope.mp4"), "--out", "null"]) == 1
+    assert "not found" in capsys.readouterr().err
