@@ -1,0 +1,381 @@
+"""Radiometric calibration: the projector's response g, the ambient term Γ and the albedo α.
+
+The model (DESIGN.md §3), in camera-linear light normalised to [0, 1]::
+
+    O(x) = α(x) · (F P)(x) + Γ(x),        P = g(v) ∈ [0, 1],  g(0) = 0, g(255) = 1
+
+Captures (``capture`` counts them): a black frame and a white frame (each averaged over a few
+captures against camera noise) and one *patch ramp*: a grid of uniform gray patches, one level
+each. For any pixel inside a patch (farther than the blur from the patch's border) the ratio
+``(I_v − I_black) / (I_white − I_black)`` is ``g(v)`` whatever the albedo, shading and ambient
+there, so a single capture gives the whole ramp, averaged over thousands of pixels. The three
+camera channels give the three projector channels (gray patches; no crosstalk assumed).
+
+Only the composition camera-response ∘ projector-response is observable. The camera is assumed
+linear (RAW-like, the simulator's default), or to follow the known power law ``camera_gamma``
+(codes are linearised first). A camera with an unknown curve makes the recovered exponent
+wrong — with ambient light the composed curve is not even a power law (a camera of gamma 1.8
+turns a true 2.2 into ~1.44 here) — so measure the camera's response first and pass it.
+
+Γ and α are mapped into projector pixels through each plane's homography (the plane of a
+projector pixel is given by the fold line, as in the warp): Γ = black (smoothed within each
+plane: it is a few camera codes, mostly noise in one frame), α = white − black. Within a blur
+radius of the frame edge α includes the blurred white frame's fall-off over the edge, i.e. it
+is exactly what the projector's full white produces at each pixel (≈ the in-focus α inside).
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+
+import numpy as np
+
+from ..errors import CalibrationError, InputError
+from .capture import Capturer
+from .file import Calibration
+
+log = logging.getLogger(__name__)
+
+OPTIONS = ("black_frames", "white_frames", "ramp_levels", "ramp_layout", "camera_gamma",
+           "response_model", "ambient_smooth")
+
+# 16 levels fill a 4 x 4 patch grid; spaced evenly in code values, which puts most of them
+# where g is steep (gamma > 1) and is what an 8-bit LUT is indexed by.
+DEFAULT_LEVELS = tuple(range(15, 256, 16))  # 15, 31, ..., 255
+# A camera code at or above this is treated as clipped.
+SATURATED = 250.0
+
+# Mean frames kept per calibration run (keyed by the Capturer, so nothing leaks between runs):
+# a later stage, or a second radiometry pass with other options, reuses them for free.
+_FRAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+# --------------------------------------------------------------------------- helpers
+def linearize_camera(codes: np.ndarray, camera_gamma: float = 1.0) -> np.ndarray:
+    """Camera code values (0..255, any float/uint8 array) -> camera-linear light in [0, 1].
+
+    ``camera_gamma = 1`` is a linear camera; otherwise ``(code / 255) ** camera_gamma``.
+    """
+    x = np.asarray(codes, dtype=np.float32) / np.float32(255.0)
+    if camera_gamma != 1.0:
+        x = np.power(np.clip(x, 0.0, None), np.float32(camera_gamma))
+    return x
+
+
+def mean_frame(capture: Capturer, key: str, pattern: np.ndarray, n: int) -> np.ndarray:
+    """Average of ``n`` captures of ``pattern``, cached per calibration run under ``key``.
+
+    A later call with the same ``capture`` reuses the captures already taken and only adds the
+    missing ones. Returns float32 camera codes (Hc, Wc, 3).
+    """
+    cache = _FRAMES.setdefault(capture, {})
+    have_n, have = cache.get(key, (0, None))
+    if have_n >= n:
+        return have
+    extra = capture.mean(pattern, n - have_n)
+    mean = extra if have is None else (have * have_n + extra * (n - have_n)) / n
+    mean = mean.astype(np.float32)
+    cache[key] = (n, mean)
+    return mean
+
+
+def cached_frame_count(capture: Capturer, key: str) -> int:
+    """How many captures the cached mean ``key`` holds (0 if none)."""
+    return _FRAMES.get(capture, {}).get(key, (0, None))[0]
+
+
+def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Camera coordinates of every projector pixel, through its own plane's homography.
+
+    Returns
+    -------
+    map_x, map_y : (Hp, Wp) float32
+        Camera (x, y) of projector pixel centre (x, y), ready for ``cv2.remap``.
+    """
+    wp, hp = calib.projector_size
+    ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float64)
+    plane = calib.plane_map()
+    map_x = np.empty((hp, wp), np.float64)
+    map_y = np.empty((hp, wp), np.float64)
+    for p in range(calib.n_planes):
+        sel = plane == p
+        H = calib.H_cam_from_proj[p]
+        x, y = xs[sel], ys[sel]
+        w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+        map_x[sel] = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+        map_y[sel] = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    return map_x.astype(np.float32), map_y.astype(np.float32)
+
+
+def to_projector(calib: Calibration, img_cam: np.ndarray,
+                 maps: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Resample a camera-space image into projector pixels (bilinear, per plane).
+
+    Camera values are *radiance* (light per area), so point sampling at each projector
+    pixel's camera position is the right, energy-consistent resampling for the gather model.
+
+    Parameters
+    ----------
+    calib : Calibration with the geometry section.
+    img_cam : (Hc, Wc) or (Hc, Wc, C) float32
+    maps : the output of :func:`projector_to_camera_maps` (computed when omitted).
+
+    Returns
+    -------
+    img_proj : (Hp, Wp[, C]) float32, 0 where the camera does not see the pixel
+    seen : (Hp, Wp) bool, True where the projector pixel maps inside the camera frame
+    """
+    import cv2
+
+    if maps is None:
+        maps = projector_to_camera_maps(calib)
+    wc, hc = calib.camera_size
+    map_x, map_y = maps
+    seen = (map_x >= 0) & (map_x <= wc - 1) & (map_y >= 0) & (map_y <= hc - 1)
+    out = cv2.remap(np.ascontiguousarray(img_cam, dtype=np.float32), map_x, map_y,
+                    interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out, seen
+
+
+def ramp_pattern(projector_size: tuple[int, int], levels, grid: tuple[int, int] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A grid of uniform gray patches, one per level, in reading order.
+
+    Returns
+    -------
+    pattern : (Hp, Wp, 3) uint8
+    cells : (L, 4) int ``(x0, y0, x1, y1)`` of each level's patch (exclusive ends)
+    """
+    wp, hp = projector_size
+    levels = list(levels)
+    if grid is None:
+        cols = int(np.ceil(np.sqrt(len(levels) * wp / hp)))
+        rows = int(np.ceil(len(levels) / cols))
+    else:
+        cols, rows = grid
+    xs = np.linspace(0, wp, cols + 1).round().astype(int)
+    ys = np.linspace(0, hp, rows + 1).round().astype(int)
+    pattern = np.zeros((hp, wp, 3), np.uint8)
+    cells = []
+    for i, v in enumerate(levels):
+        r, c = divmod(i, cols)
+        x0, x1, y0, y1 = xs[c], xs[c + 1], ys[r], ys[r + 1]
+        pattern[y0:y1, x0:x1] = v
+        cells.append((x0, y0, x1, y1))
+    return pattern, np.array(cells, dtype=int)
+
+
+def fit_gamma(levels: np.ndarray, values: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """Least-squares exponent γ of ``values ≈ (levels / 255) ** γ`` (Gauss-Newton, linear domain).
+
+    Fitting in the linear domain (not log) weights each level by its absolute error, so the
+    dim levels, whose ratios carry the most relative noise, do not dominate.
+    """
+    t = np.asarray(levels, np.float64) / 255.0
+    y = np.asarray(values, np.float64)
+    w = np.ones_like(y) if weights is None else np.asarray(weights, np.float64)
+    ok = (t > 0) & (t < 1) & np.isfinite(y)
+    t, y, w = t[ok], y[ok], w[ok]
+    if t.size == 0:
+        raise CalibrationError("no usable gray-ramp level between 0 and 255 to fit the "
+                               "projector's response; use ramp_levels inside 1..254")
+    pos = y > 1e-3  # log-domain start, then refine where the noise model is right
+    g = float(np.polyfit(np.log(t[pos]), np.log(y[pos]), 1, w=np.sqrt(y[pos]))[0]) if \
+        pos.sum() >= 2 else 2.2
+    g = float(np.clip(g, 0.2, 6.0))
+    for _ in range(30):
+        f = t ** g
+        r = y - f
+        J = f * np.log(t)
+        step = float((w * J * r).sum() / max((w * J * J).sum(), 1e-300))
+        g = float(np.clip(g + step, 0.2, 6.0))
+        if abs(step) < 1e-9:
+            break
+    return g
+
+
+def _monotone_lut(levels: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(256,) LUT through (0, 0), the measured points and (255, 1): monotone cubic (PCHIP)."""
+    from scipy.interpolate import PchipInterpolator
+
+    x = np.concatenate([[0.0], np.asarray(levels, np.float64), [255.0]])
+    y = np.concatenate([[0.0], np.asarray(values, np.float64), [1.0]])
+    order = np.argsort(x, kind="stable")
+    x, y = x[order], y[order]
+    keep = np.concatenate([[True], np.diff(x) > 0])
+    x, y = x[keep], np.clip(y[keep], 0.0, 1.0)
+    y = np.maximum.accumulate(y)  # a response never decreases; noise can make it dip
+    return PchipInterpolator(x, y)(np.arange(256.0)).astype(np.float32)
+
+
+def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sigma: float
+                      ) -> np.ndarray:
+    """Normalised Gaussian smoothing of (H, W, C) within each plane's valid pixels, so the
+    walls' different albedos do not bleed across the fold."""
+    import cv2
+
+    out = np.zeros_like(img)
+    for p in np.unique(plane):
+        m = ((plane == p) & valid).astype(np.float32)
+        num = cv2.GaussianBlur(img * m[..., None], (0, 0), sigma)
+        den = cv2.GaussianBlur(m, (0, 0), sigma)[..., None]
+        sel = m > 0
+        out[sel] = (num / np.maximum(den, 1e-6))[sel]
+    return out
+
+
+# --------------------------------------------------------------------------- the stage
+def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
+                         black_frames: int = 3, white_frames: int = 2,
+                         ramp_levels=DEFAULT_LEVELS, ramp_layout: str = "patches",
+                         camera_gamma: float = 1.0, response_model: str = "auto",
+                         ambient_smooth: float = 2.0) -> Calibration:
+    """Measure the projector response, ambient Γ and albedo α; fill ``calib``'s radiometry.
+
+    Parameters
+    ----------
+    procam : ProCam (only used through ``capture``)
+    calib : Calibration
+        With the geometry section (homographies, fold); filled in place and returned.
+    capture : Capturer
+        Counts the captures (stage ``"radiometry"``).
+    black_frames, white_frames : int
+        Captures averaged for the black and the white frame (camera noise).
+    ramp_levels : sequence of int in 1..254
+        Gray levels of the ramp.
+    ramp_layout : ``"patches"`` | ``"frames"``
+        ``"patches"``: all levels in one capture as a grid of patches (needs no
+        interreflection between the walls); ``"frames"``: one full-frame capture per level.
+    camera_gamma : float
+        The camera's known response exponent (1 = linear camera; see the module docstring).
+    response_model : ``"auto"`` | ``"gamma"`` | ``"table"``
+        The LUT: a fitted power law, a monotone interpolation of the measurements, or the
+        power law when it fits every level within 0.01 (else the table).
+    ambient_smooth : float
+        Gaussian sigma (projector px) applied to Γ within each plane. Ambient light is
+        low-contrast and smooth while the black frame is mostly camera noise (Γ is a few
+        codes), so this cuts Γ's noise several-fold; 0 keeps it per pixel.
+
+    Returns
+    -------
+    Calibration
+        ``response_lut`` (3, 256) float32, ``ambient_proj`` and ``albedo_proj``
+        (Hp, Wp, 3) float32 in camera-linear units, ``meta["radiometry"]`` with the fitted
+        ``gamma`` per channel, fit residuals and the coverage.
+
+    Raises
+    ------
+    CalibrationError
+        When the white frame is not brighter than the black one where the projector lights
+        the surface, when the camera saturates on white, or when no ramp patch is usable.
+    """
+    if response_model not in ("auto", "gamma", "table"):
+        raise InputError(f"response_model must be 'auto', 'gamma' or 'table'; got {response_model!r}")
+    if ramp_layout not in ("patches", "frames"):
+        raise InputError(f"ramp_layout must be 'patches' or 'frames'; got {ramp_layout!r}")
+    levels = np.array(sorted({int(v) for v in ramp_levels}), dtype=int)
+    if levels.size < 2 or levels.min() < 1 or levels.max() > 255:
+        raise InputError(f"ramp_levels needs at least 2 distinct levels in 1..255; got {ramp_levels}")
+    if black_frames < 1 or white_frames < 1:
+        raise InputError("black_frames and white_frames must be >= 1")
+    wp, hp = calib.projector_size
+    n_ramp = 1 if ramp_layout == "patches" else len(levels)
+    capture.begin("radiometry", black_frames + white_frames + n_ramp)
+
+    black_pat = np.zeros((hp, wp, 3), np.uint8)
+    white_pat = np.full((hp, wp, 3), 255, np.uint8)
+    black_c = mean_frame(capture, "black", black_pat, black_frames)
+    white_c = mean_frame(capture, "white", white_pat, white_frames)
+
+    maps = projector_to_camera_maps(calib)
+    black_p, seen = to_projector(calib, linearize_camera(black_c, camera_gamma), maps)
+    white_p, _ = to_projector(calib, linearize_camera(white_c, camera_gamma), maps)
+    sat_p, _ = to_projector(calib, (white_c >= SATURATED).astype(np.float32), maps)
+    signal = white_p - black_p
+    # Pixels the projector visibly lights: white clearly above black in every channel.
+    lit = seen & (signal.min(axis=2) > 0.02)
+    if lit.mean() < 0.25:
+        raise CalibrationError(
+            f"the white frame is brighter than the black one on only {100 * lit.mean():.0f}% of "
+            "the projector's pixels: is the projector on, the camera pointed at the surface, and "
+            "the geometry calibration right?")
+    saturated = (sat_p > 0).any(axis=2) & lit
+    if saturated.mean() > 0.01 * max(lit.mean(), 1e-9):
+        frac = saturated.sum() / max(lit.sum(), 1)
+        if frac > 0.05:
+            raise CalibrationError(
+                f"the camera clips on the white frame at {100 * frac:.0f}% of the lit pixels; "
+                "lower the camera's exposure or gain (or the projector's brightness)")
+        log.warning("camera clips at %.1f%% of the lit pixels on white; they are left out of the "
+                    "ramp", 100 * frac)
+    usable = lit & ~saturated
+
+    # ---- the ramp: g(v) per channel as a ratio of sums over each patch's interior
+    ratios = np.full((3, levels.size), np.nan)
+    support = np.zeros(levels.size, dtype=int)
+    if ramp_layout == "patches":
+        pattern, cells = ramp_pattern(calib.projector_size, levels)
+        ramp_p, _ = to_projector(calib, linearize_camera(capture(pattern), camera_gamma), maps)
+        frames = [ramp_p] * len(levels)
+    else:
+        cells = np.tile([0, 0, wp, hp], (len(levels), 1))
+        frames = []
+        for v in levels:
+            frames.append(to_projector(calib, linearize_camera(
+                capture(np.full((hp, wp, 3), v, np.uint8)), camera_gamma), maps)[0])
+    for i, (x0, y0, x1, y1) in enumerate(cells):
+        # Stay clear of the patch borders by more than any plausible blur (the PSF stage
+        # has not measured it yet): a quarter of the patch, at least 12 px.
+        mx = max(12, (x1 - x0) // 4) if ramp_layout == "patches" else 12
+        my = max(12, (y1 - y0) // 4) if ramp_layout == "patches" else 12
+        sl = (slice(y0 + my, y1 - my), slice(x0 + mx, x1 - mx))
+        m = usable[sl]
+        support[i] = int(m.sum())
+        if support[i] < 50:
+            continue
+        num = (frames[i][sl] - black_p[sl])[m].sum(axis=0)
+        den = signal[sl][m].sum(axis=0)
+        ratios[:, i] = num / den
+    ok = np.isfinite(ratios[0])
+    if ok.sum() < 2:
+        raise CalibrationError(
+            f"only {int(ok.sum())} gray-ramp patches were seen clearly (need 2); the projector "
+            "lights too little of the camera's view — move the camera or use ramp_layout='frames'")
+
+    # ---- response: fit, then the LUT
+    gammas, rms, lut = [], [], np.empty((3, 256), np.float32)
+    for c in range(3):
+        g = fit_gamma(levels[ok], ratios[c, ok], weights=support[ok])
+        resid = ratios[c, ok] - (levels[ok] / 255.0) ** g
+        gammas.append(g)
+        rms.append(float(np.sqrt(np.mean(resid ** 2))))
+        use_gamma = response_model == "gamma" or (
+            response_model == "auto" and float(np.abs(resid).max()) < 0.01)
+        lut[c] = ((np.arange(256) / 255.0) ** g).astype(np.float32) if use_gamma else \
+            _monotone_lut(levels[ok], ratios[c, ok])
+        log.info("projector response channel %d: gamma %.3f (rms residual %.4f, %s LUT)",
+                 c, g, rms[-1], "power-law" if use_gamma else "table")
+
+    calib.response_lut = lut
+    ambient = np.where(seen[..., None], black_p, 0).astype(np.float32)
+    if ambient_smooth > 0:
+        ambient = _smooth_per_plane(ambient, calib.plane_map(), seen, ambient_smooth)
+    calib.ambient_proj = ambient
+    calib.albedo_proj = np.where(seen[..., None], np.clip(signal, 0, None), 0).astype(np.float32)
+    calib.meta["radiometry"] = {
+        "gamma": [round(g, 4) for g in gammas],
+        "fit_rms": [round(r, 5) for r in rms],
+        "response_model": response_model,
+        "camera_gamma": float(camera_gamma),
+        "levels": levels[ok].tolist(),
+        "ratios": np.round(ratios[:, ok], 5).tolist(),
+        "seen_fraction": round(float(seen.mean()), 4),
+        "lit_fraction": round(float(lit.mean()), 4),
+        "captures": int(capture.counts.get("radiometry", 0)),
+    }
+    return calib
+
+
+__all__ = ["calibrate_radiometry", "fit_gamma", "linearize_camera", "mean_frame",
+           "projector_to_camera_maps", "to_projector", "ramp_pattern", "OPTIONS", "DEFAULT_LEVELS"]
