@@ -48,7 +48,7 @@ OPTIONS = ("line_spacing", "line_phases", "line_width", "samples", "min_kink_deg
 __all__ = [
     "OPTIONS", "Kink", "GeometryDetail", "find_kink", "fit_fold", "line_crossings",
     "fit_homography", "fold_to_projector", "lit_polygon", "largest_inscribed_rect",
-    "calibrate_geometry", "geometry_diagnostics", "apply_h",
+    "calibrate_geometry", "geometry_diagnostics", "apply_h", "apply_h_per_plane",
 ]
 
 
@@ -58,6 +58,31 @@ def apply_h(H: np.ndarray, pts_xy: np.ndarray) -> np.ndarray:
     p = np.asarray(pts_xy, dtype=np.float64).reshape(-1, 2)
     q = p @ H[:, :2].T + H[:, 2]
     return q[:, :2] / q[:, 2:3]
+
+
+def apply_h_per_plane(Hs: np.ndarray, plane: np.ndarray, xs: np.ndarray,
+                      ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map points through the homography of their own plane.
+
+    Parameters
+    ----------
+    Hs : (n, 3, 3) homographies; plane : int array, the plane of each point (0 .. n-1);
+    xs, ys : float arrays of the same shape as ``plane``.
+
+    Returns
+    -------
+    mx, my : float64 arrays of that shape.
+    """
+    mx = np.empty(xs.shape, np.float64)
+    my = np.empty(ys.shape, np.float64)
+    for p in range(len(Hs)):
+        sel = plane == p
+        H = Hs[p]
+        x, y = xs[sel], ys[sel]
+        w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+        mx[sel] = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+        my[sel] = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    return mx, my
 
 
 def _normalise_line(line: np.ndarray) -> np.ndarray:

@@ -65,6 +65,7 @@ import numpy as np
 from ..errors import CalibrationError, InputError
 from .capture import Capturer
 from .file import Calibration
+from .geometry import apply_h_per_plane
 from .radiometry import linearize_camera, to_projector
 
 log = logging.getLogger(__name__)
@@ -731,16 +732,7 @@ def camera_to_projector_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray
         plane = (a * xs + b * ys + c >= 0).astype(int)
     else:
         plane = np.zeros(xs.shape, int)
-    px = np.empty_like(xs)
-    py = np.empty_like(ys)
-    for p in range(calib.n_planes):
-        sel = plane == p
-        H = calib.H_proj_from_cam[p]
-        x, y = xs[sel], ys[sel]
-        w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-        px[sel] = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
-        py[sel] = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
-    return px, py
+    return apply_h_per_plane(calib.H_proj_from_cam, plane, xs, ys)
 
 
 def _camera_bbox(calib: Calibration, x: int, y: int, h: int) -> tuple[slice, slice] | None:

@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import CalibrationError, InputError
 from .capture import Capturer
 from .file import Calibration
+from .geometry import apply_h_per_plane
 
 log = logging.getLogger(__name__)
 
@@ -96,15 +97,7 @@ def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray
     wp, hp = calib.projector_size
     ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float64)
     plane = calib.plane_map()
-    map_x = np.empty((hp, wp), np.float64)
-    map_y = np.empty((hp, wp), np.float64)
-    for p in range(calib.n_planes):
-        sel = plane == p
-        H = calib.H_cam_from_proj[p]
-        x, y = xs[sel], ys[sel]
-        w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-        map_x[sel] = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
-        map_y[sel] = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    map_x, map_y = apply_h_per_plane(calib.H_cam_from_proj, plane, xs, ys)
     return map_x.astype(np.float32), map_y.astype(np.float32)
 
 

@@ -187,6 +187,12 @@ class ClBlur:
             raise InputError(f"{what} must be C-contiguous with zero offset; pass a fresh "
                              "pyopencl.array.Array (e.g. .copy()).")
 
+    def _check_pair(self, src, dst, op: str) -> None:
+        self._check(src, "src")
+        self._check(dst, "dst")
+        if src.data == dst.data:
+            raise InputError(f"{op} cannot work in place: src and dst must be different arrays.")
+
     def forward(self, src, dst, wait_for=None):
         """Enqueue ``dst = F src`` (no host synchronisation).
 
@@ -199,10 +205,7 @@ class ClBlur:
         -------
         pyopencl.Event
         """
-        self._check(src, "src")
-        self._check(dst, "dst")
-        if src.data == dst.data:
-            raise InputError("forward cannot work in place: src and dst must be different arrays.")
+        self._check_pair(src, dst, "forward")
         return self._run_fwd(src, dst, wait_for)
 
     def adjoint(self, src, dst, wait_for=None):
@@ -217,10 +220,7 @@ class ClBlur:
         -------
         pyopencl.Event
         """
-        self._check(src, "src")
-        self._check(dst, "dst")
-        if src.data == dst.data:
-            raise InputError("adjoint cannot work in place: src and dst must be different arrays.")
+        self._check_pair(src, dst, "adjoint")
         return self._run_adj(src, dst, wait_for)
 
     def _host(self, img: np.ndarray, op) -> np.ndarray:
