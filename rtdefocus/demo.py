@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .calib.file import json_default
 from .imageio import write_image
 
 log = logging.getLogger(__name__)
@@ -335,7 +336,7 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
         "backend": next(iter(comps.values())).backend,
         "seconds": round(time.perf_counter() - t_start, 1),
     }
-    (out / "table.json").write_text(json.dumps(result, indent=2, default=_json_default))
+    (out / "table.json").write_text(json.dumps(result, indent=2, default=json_default))
     files.append(out / "table.json")
     result["files"] = [str(f) for f in files]
     result["markdown"] = md
@@ -349,11 +350,3 @@ def _fill_missing(scores: ImageScores, methods) -> ImageScores:
             for m in methods:
                 table.setdefault(m, float("nan"))
     return scores
-
-
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(type(obj).__name__)

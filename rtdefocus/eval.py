@@ -688,8 +688,9 @@ def run_eval(out_dir: str | Path = "eval_out", *, presets=EVAL_PRESETS, images=N
     from dataclasses import asdict
 
     from . import sim
+    from .calib.file import json_default
     from .compensate import Compensator
-    from .demo import _json_default, score_image
+    from .demo import score_image
 
     say = step or (lambda msg: log.info(msg))
     t_start = time.perf_counter()
@@ -776,7 +777,7 @@ def run_eval(out_dir: str | Path = "eval_out", *, presets=EVAL_PRESETS, images=N
     result["seconds"] = round(time.perf_counter() - t_start, 1)
     md = eval_markdown(result)
     (out / "eval.md").write_text(md)
-    (out / "eval.json").write_text(json.dumps(result, indent=1, default=_json_default))
+    (out / "eval.json").write_text(json.dumps(result, indent=1, default=json_default))
     result["files"] = [str(out / "eval.md"), str(out / "eval.json")] + [str(f) for f in files]
     result["markdown"] = md
     return result

@@ -14,6 +14,7 @@ import time
 
 import cv2
 import numpy as np
+import checkerboard
 import pytest
 
 import rtdefocus as rd
@@ -155,6 +156,27 @@ def test_kink_found_at_a_sharp_bend_and_not_on_a_smooth_one():
 
 
 # --------------------------------------------------------------------------- accuracy per preset
+@pytest.mark.parametrize("preset", PRESETS)
+def test_checkerboard_through_the_calibrated_warp_is_where_the_rect_says(calibrated, preset):
+    """The calibrated geometry end to end: a checkerboard through ``warp`` (the calibration's
+    homographies, fold and display rect), seen by the camera with ``sharp=True``, has its inner
+    corners within 0.5 camera px RMS of where ``display_rect`` puts them, and each row and
+    column of corners is straight across the fold (line-fit residual < 0.5 px)."""
+    from rtdefocus.gl.warp import warp_image
+
+    pc, calib, _ = calibrated(preset)
+    img = checkerboard.board()
+    rect = calib.display_rect((img.shape[1], img.shape[0]), margin=0.05)
+    frame = warp_image(calib, img, rect=rect)
+    err, grid = checkerboard.corner_errors(pc.capture(frame, sharp=True), rect, img.shape)
+    rms = float(np.sqrt(np.mean(err ** 2)))
+    assert rms <= 0.5, f"{preset}: corners {rms:.3f} px RMS from the rect (max {err.max():.3f})"
+    for line in list(grid) + list(grid.transpose(1, 0, 2)):
+        centred = line - line.mean(axis=0)
+        residual = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(line))
+        assert residual < 0.5, f"{preset}: a row/column of corners bends by {residual:.3f} px RMS"
+
+
 @pytest.mark.parametrize("preset", PRESETS)
 def test_geometry_matches_the_truth(calibrated, preset):
     pc, calib, seconds = calibrated(preset)

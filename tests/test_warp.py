@@ -9,6 +9,7 @@ import logging
 import cv2
 import numpy as np
 import pytest
+import checkerboard
 
 from rtdefocus.calib.file import Calibration
 from rtdefocus.errors import DeviceError, InputError
@@ -381,29 +382,11 @@ def test_checkerboard_through_true_geometry_lands_on_the_rect(gl_ctx, preset):
     from rtdefocus.gl.warp import GLWarp
     procam = sim.VirtualProCam(preset)
     truth = procam.truth
-    sq, nx, ny = 40, 10, 7                        # 10 x 7 squares -> 9 x 6 inner corners
-    yy, xx = np.mgrid[0:ny * sq, 0:nx * sq]
-    board = np.where((xx // sq + yy // sq) % 2 == 0, 230, 25).astype(np.uint8)
-    quiet = sq // 2                               # a white quiet zone, as the detector needs
-    board = np.pad(board, quiet, constant_values=230)
-    board = np.repeat(board[..., None], 3, axis=2)
-    W, H = board.shape[1], board.shape[0]
+    img = checkerboard.board()
+    H, W = img.shape[:2]
     rect = _rect_inside(truth.extra["camera_in_frame"], W / H)
     fold = truth.fold_proj if truth.fold_proj is not None else np.zeros(3)
-    frame = GLWarp(gl_ctx, procam.projector_size).render(board, truth.H_cam_from_proj, fold, rect)
-    cam = cv2.cvtColor(procam.capture(frame, sharp=True), cv2.COLOR_RGB2GRAY)
-    found, corners = cv2.findChessboardCorners(cam, (nx - 1, ny - 1))
-    assert found, f"checkerboard not found in the camera image (rect {rect})"
-    corners = cv2.cornerSubPix(cam, corners, (7, 7), (-1, -1),
-                               (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)).reshape(-1, 2)
-    # inner corner (i, j) is the input point u = quiet + i*sq - 0.5 (between two pixels), which
-    # the rect places at x0 - 0.5 + (u + 0.5) * w / W
-    x0, y0, w, h = rect
-    i, j = np.meshgrid(np.arange(1, nx), np.arange(1, ny))
-    expect = np.stack([x0 - 0.5 + (quiet + i.ravel() * sq) * w / W,
-                       y0 - 0.5 + (quiet + j.ravel() * sq) * h / H], axis=1)
-    d = np.linalg.norm(expect[:, None] - corners[None], axis=2)
-    err = d.min(axis=1)
-    assert len(set(d.argmin(axis=1))) == len(expect), "corners matched ambiguously"
+    frame = GLWarp(gl_ctx, procam.projector_size).render(img, truth.H_cam_from_proj, fold, rect)
+    err, _ = checkerboard.corner_errors(procam.capture(frame, sharp=True), rect, img.shape)
     rms = float(np.sqrt(np.mean(err ** 2)))
     assert rms <= 0.5, f"{preset}: corners {rms:.3f} camera px RMS from the rect (max {err.max():.3f})"

@@ -182,7 +182,7 @@ class Calibration:
             "sections": self.sections(),
             **{k: v for k, v in self.meta.items() if k not in ("format", "format_version")},
         }
-        payload = {"meta": np.array(json.dumps(meta, default=_json_default))}
+        payload = {"meta": np.array(json.dumps(meta, default=json_default))}
         payload.update(self._arrays())
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
@@ -261,7 +261,8 @@ class Calibration:
         return calib
 
 
-def _json_default(obj):
+def json_default(obj):
+    """``json.dumps(default=...)`` for NumPy scalars and arrays and paths."""
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
