@@ -12,9 +12,9 @@ import functools
 import math
 import time
 
+import checkerboard
 import cv2
 import numpy as np
-import checkerboard
 import pytest
 
 import rtdefocus as rd
@@ -417,3 +417,18 @@ def test_cli_calibrate_writes_file_and_picture(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit) as info:
         cli.main(["calibrate", "--sim", "pillar", "-o", str(out), "--stages", "psf"])
     assert info.value.code == 2
+
+
+def test_misspelt_option_is_reported_before_any_capture():
+    class Counting:
+        projector_size, camera_size = (400, 300), (640, 480)
+        n = 0
+
+        def capture(self, pattern):
+            self.n += 1
+            return np.zeros((480, 640, 3), np.uint8)
+
+    pc = Counting()
+    with pytest.raises(InputError, match="unknown calibration options \\['layuot'\\]"):
+        rd.calibrate(pc, layuot="paper")
+    assert pc.n == 0

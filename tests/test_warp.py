@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import logging
 
+import checkerboard
 import cv2
 import numpy as np
 import pytest
-import checkerboard
 
 from rtdefocus.calib.file import Calibration
 from rtdefocus.errors import DeviceError, InputError

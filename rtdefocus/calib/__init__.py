@@ -37,42 +37,36 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     Calibration
         With ``meta["captures"]`` (per stage) and ``meta["seconds"]`` (per stage).
     """
-    from .geometry import calibrate_geometry
+    import importlib
+
+    from ..errors import InputError
 
     unknown = [s for s in stages if s not in STAGES]
     if unknown or "geometry" not in stages:
-        from ..errors import InputError
         raise InputError(f"stages must include 'geometry' and be among {STAGES}; got {stages}")
+    # Sort the options out before the first capture: a misspelt option must not cost a whole
+    # calibration (minutes on real hardware) before it is reported.
+    modules = {s: importlib.import_module(f"{__name__}.{s}") for s in STAGES if s in stages}
+    per_stage = {s: {k: options.pop(k) for k in list(options) if k in getattr(m, "OPTIONS", ())}
+                 for s, m in modules.items()}
+    if options:
+        known = {s: sorted(getattr(m, "OPTIONS", ())) for s, m in modules.items()}
+        raise InputError(f"unknown calibration options {sorted(options)} for stages {stages}; "
+                         f"each stage accepts {known}")
     cap = Capturer(procam, progress)
     timings = {}
-    t0 = time.perf_counter()
-    calib = calibrate_geometry(procam, capture=cap, **_take(options, "geometry"))
-    timings["geometry"] = time.perf_counter() - t0
-    if "radiometry" in stages:
-        from .radiometry import calibrate_radiometry
+    calib = None
+    for stage, mod in modules.items():
         t0 = time.perf_counter()
-        calibrate_radiometry(procam, calib, capture=cap, **_take(options, "radiometry"))
-        timings["radiometry"] = time.perf_counter() - t0
-    if "psf" in stages:
-        from .psf import calibrate_psf
-        t0 = time.perf_counter()
-        calibrate_psf(procam, calib, capture=cap, **_take(options, "psf"))
-        timings["psf"] = time.perf_counter() - t0
-    if options:
-        from ..errors import InputError
-        raise InputError(f"unknown calibration options {sorted(options)}")
+        if stage == "geometry":
+            calib = mod.calibrate_geometry(procam, capture=cap, **per_stage[stage])
+        else:
+            getattr(mod, f"calibrate_{stage}")(procam, calib, capture=cap, **per_stage[stage])
+        timings[stage] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
     log.info("calibration done: %d captures %s, %s", cap.total, cap.counts, calib.meta["seconds"])
     return calib
-
-
-# Which keyword options each stage accepts; each stage module lists its own in OPTIONS.
-def _take(options: dict, stage: str) -> dict:
-    import importlib
-    mod = importlib.import_module(f"{__name__}.{stage}")
-    names = getattr(mod, "OPTIONS", ())
-    return {k: options.pop(k) for k in list(options) if k in names}
 
 
 __all__ = ["calibrate", "Calibration", "Capturer", "STAGES"]
