@@ -218,7 +218,7 @@ def cmd_calibrate(args) -> int:
 
     from . import procam as procam_mod
     from .calib import calibrate
-    from .calib.geometry import geometry_diagnostics
+    from .calib.geometry_diagnostics import geometry_diagnostics
 
     stages = args.stages or _available_stages()
     if args.sim is not None:

@@ -287,7 +287,7 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     """
     from . import sim
     from .calib import calibrate
-    from .calib.geometry import geometry_diagnostics
+    from .calib.geometry_diagnostics import geometry_diagnostics
     from .calib.psf import psf_diagnostics
     from .compensate import Compensator
 

@@ -174,7 +174,7 @@ def oracle_calibration(procam):
     """
     from . import sim
     from .calib.file import Calibration
-    from .calib.geometry import lit_polygon
+    from .calib.planar import lit_polygon
 
     truth = procam.truth
     wp, hp = procam.projector_size
@@ -301,7 +301,7 @@ def calibrate_layouts(procam, layouts=tuple(EVAL_LAYOUTS), progress=None) -> tup
     """Calibrate geometry and radiometry once, then the kernel stage for several layouts.
 
     The layouts share one pilot and one set of dot captures
-    (:func:`rtdefocus.calib.psf.calibrate_psf_layouts`), each pattern averaged as often as the
+    (:func:`rtdefocus.eval_layouts.calibrate_psf_layouts`), each pattern averaged as often as the
     first layout alone would average it, so the layouts are compared on equal noise.
 
     Parameters
@@ -322,7 +322,7 @@ def calibrate_layouts(procam, layouts=tuple(EVAL_LAYOUTS), progress=None) -> tup
 
     from .calib import calibrate
     from .calib.capture import Capturer
-    from .calib.psf import calibrate_psf_layouts
+    from .eval_layouts import calibrate_psf_layouts
 
     layouts = _check_names("layouts", layouts, tuple(EVAL_LAYOUTS))
     t0 = time.perf_counter()

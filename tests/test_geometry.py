@@ -19,13 +19,10 @@ import pytest
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.calib.geometry import (
-    apply_h,
-    calibrate_geometry,
-    find_kink,
-    largest_inscribed_rect,
-    line_crossings,
-)
+from rtdefocus.calib.fold import find_kink
+from rtdefocus.calib.geometry import calibrate_geometry
+from rtdefocus.calib.homography import line_crossings
+from rtdefocus.calib.planar import apply_h, largest_inscribed_rect
 from rtdefocus.calib.structured_light import LinePatterns, decode_gray, find_ridge_points
 from rtdefocus.errors import CalibrationError, InputError
 
@@ -244,7 +241,7 @@ def test_display_rect_lies_in_the_lit_area(calibrated, preset):
 
 
 def test_diagnostics_picture(calibrated):
-    from rtdefocus.calib.geometry import geometry_diagnostics
+    from rtdefocus.calib.geometry_diagnostics import geometry_diagnostics
 
     _, calib, _ = calibrated("cubicle")
     img = geometry_diagnostics(calib)

@@ -150,7 +150,8 @@ def test_default_layout_adapts_to_the_blur_gradient():
     gradient gets more samples, and one pattern holds them all."""
     import copy
 
-    from rtdefocus.calib.psf import _dot_geometry, dot_sizes, interpolation_field
+    from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
+    from rtdefocus.calib.psf.kernel_field import interpolation_field
 
     cal = copy.deepcopy(calibrated("cubicle").calib)
     counts = []

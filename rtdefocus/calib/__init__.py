@@ -5,14 +5,38 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 
+from ..errors import InputError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
 from .file import Calibration
+from .geometry import GeometryOptions, calibrate_geometry
+from .psf import PsfOptions, calibrate_psf
+from .radiometry import RadiometryOptions, calibrate_radiometry
 
 log = logging.getLogger(__name__)
 
-STAGES = ("geometry", "radiometry", "psf")
+
+@dataclass(frozen=True)
+class Stage:
+    """One calibration stage: the function that runs it and the dataclass of its options."""
+
+    run: Callable[..., Calibration]
+    options: type
+
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(self.options))
+
+
+#: The stages, in the order they run; geometry makes the Calibration the others fill in.
+STAGE_TABLE: dict[str, Stage] = {
+    "geometry": Stage(calibrate_geometry, GeometryOptions),
+    "radiometry": Stage(calibrate_radiometry, RadiometryOptions),
+    "psf": Stage(calibrate_psf, PsfOptions),
+}
+STAGES = tuple(STAGE_TABLE)
 
 
 def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
@@ -29,44 +53,49 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     progress : callable(stage, done, total), optional
         Called after every capture (the CLI draws a progress bar from it).
     **options
-        Stage options, passed to the stage that knows them (see each stage's function):
-        geometry: ``line_spacing``, ...; psf: ``layout`` ("default", "paper", "dense"), ...
+        Stage options, passed to the stage whose options dataclass has that field
+        (:class:`~.geometry.GeometryOptions`, :class:`~.radiometry.RadiometryOptions`,
+        :class:`~.psf.PsfOptions`): geometry ``line_spacing``, ...; psf ``layout``
+        ("default", "paper", "dense"), ...
 
     Returns
     -------
     Calibration
         With ``meta["captures"]`` (per stage) and ``meta["seconds"]`` (per stage).
+
+    Raises
+    ------
+    InputError
+        An unknown stage or option (before the first capture; the message lists the valid
+        options of each stage).
     """
-    import importlib
-
-    from ..errors import InputError
-
     unknown = [s for s in stages if s not in STAGES]
     if unknown or "geometry" not in stages:
         raise InputError(f"stages must include 'geometry' and be among {STAGES}; got {stages}")
     # Sort the options out before the first capture: a misspelt option must not cost a whole
     # calibration (minutes on real hardware) before it is reported.
-    modules = {s: importlib.import_module(f"{__name__}.{s}") for s in STAGES if s in stages}
-    per_stage = {s: {k: options.pop(k) for k in list(options) if k in getattr(m, "OPTIONS", ())}
-                 for s, m in modules.items()}
+    chosen = {s: STAGE_TABLE[s] for s in STAGES if s in stages}
+    per_stage = {s: {k: options.pop(k) for k in list(options) if k in st.option_names()}
+                 for s, st in chosen.items()}
     if options:
-        known = {s: sorted(getattr(m, "OPTIONS", ())) for s, m in modules.items()}
+        known = {s: sorted(st.option_names()) for s, st in chosen.items()}
         raise InputError(f"unknown calibration options {sorted(options)} for stages {stages}; "
                          f"each stage accepts {known}")
     cap = Capturer(procam, progress)
     timings = {}
     calib = None
-    for stage, mod in modules.items():
+    for name, st in chosen.items():
         t0 = time.perf_counter()
-        if stage == "geometry":
-            calib = mod.calibrate_geometry(procam, capture=cap, **per_stage[stage])
+        if name == "geometry":
+            calib = st.run(procam, capture=cap, **per_stage[name])
         else:
-            getattr(mod, f"calibrate_{stage}")(procam, calib, capture=cap, **per_stage[stage])
-        timings[stage] = time.perf_counter() - t0
+            st.run(procam, calib, capture=cap, **per_stage[name])
+        timings[name] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
     log.info("calibration done: %d captures %s, %s", cap.total, cap.counts, calib.meta["seconds"])
     return calib
 
 
-__all__ = ["calibrate", "Calibration", "Capturer", "STAGES"]
+__all__ = ["calibrate", "Calibration", "Capturer", "STAGES", "STAGE_TABLE", "Stage",
+           "GeometryOptions", "RadiometryOptions", "PsfOptions"]

@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import __version__
 from ..errors import CalibrationFileError, InputError
+from .planar import largest_inscribed_rect
 
 FORMAT_NAME = "rtdefocus-calibration"
 FORMAT_VERSION = 1
@@ -81,6 +83,11 @@ class Calibration:
     pix_idx: np.ndarray | None = None
     pix_wts: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    #: What the geometry stage saw (:class:`~rtdefocus.calib.geometry.GeometryDetail`), for its
+    #: diagnostics picture; in memory only, never saved.
+    geometry_detail: object | None = field(default=None, repr=False, compare=False)
+    # display_rect answers per (aspect, margin, outline); not a constructor argument.
+    _rect_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -118,15 +125,13 @@ class Calibration:
     def display_rect(self, size: tuple[int, int], margin: float = 0.0) -> tuple[int, int, int, int]:
         """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears: the largest
         upright rectangle of that aspect inside the lit area, shrunk by ``margin`` (a fraction)."""
-        from .geometry import largest_inscribed_rect
-
         w, h = size
         if w <= 0 or h <= 0:
             raise InputError(f"display size must be positive (width, height); got {size}")
         # The search scans every camera pixel (~0.1 s): a video asks this for every frame, so
         # remember the answer per aspect, margin and outline (the key changes if the outline does).
         key = (w / h, float(margin), self.lit_polygon_cam.tobytes(), tuple(self.camera_size))
-        cache = self.__dict__.setdefault("_rect_cache", {})
+        cache = self._rect_cache
         if key not in cache:
             cache[key] = largest_inscribed_rect(self.lit_polygon_cam, w / h, self.camera_size,
                                                 margin)
@@ -170,8 +175,6 @@ class Calibration:
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
-        from .. import __version__
-
         meta = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,

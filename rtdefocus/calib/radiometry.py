@@ -28,22 +28,57 @@ from __future__ import annotations
 
 import logging
 import weakref
+from dataclasses import dataclass, fields
 
+import cv2
 import numpy as np
 
 from ..errors import CalibrationError, InputError
 from .capture import Capturer
 from .file import Calibration
-from .geometry import apply_h_per_plane
+from .planar import apply_h_per_plane
 
 log = logging.getLogger(__name__)
-
-OPTIONS = ("black_frames", "white_frames", "ramp_levels", "ramp_layout", "camera_gamma",
-           "response_model", "ambient_smooth")
 
 # 16 levels fill a 4 x 4 patch grid; spaced evenly in code values, which puts most of them
 # where g is steep (gamma > 1) and is what an 8-bit LUT is indexed by.
 DEFAULT_LEVELS = tuple(range(15, 256, 16))  # 15, 31, ..., 255
+
+
+@dataclass(frozen=True)
+class RadiometryOptions:
+    """Options of the radiometry stage, with their defaults (``calibrate(**options)`` routes
+    these names to :func:`calibrate_radiometry`).
+
+    Attributes
+    ----------
+    black_frames, white_frames : captures averaged for the black and the white frame (camera
+        noise).
+    ramp_levels : gray levels of the ramp, ints in 1..254 (and 255).
+    ramp_layout : ``"patches"``: all levels in one capture as a grid of patches (needs no
+        interreflection between the walls); ``"frames"``: one full-frame capture per level.
+    camera_gamma : the camera's known response exponent (1 = linear camera; see the module
+        docstring).
+    response_model : ``"auto"`` | ``"gamma"`` | ``"table"``: the LUT is a fitted power law, a
+        monotone interpolation of the measurements, or the power law when it fits every level
+        within 0.01 (else the table).
+    ambient_smooth : Gaussian sigma (projector px) applied to Γ within each plane. Ambient
+        light is low-contrast and smooth while the black frame is mostly camera noise (Γ is a
+        few codes), so this cuts Γ's noise several-fold; 0 keeps it per pixel.
+    """
+
+    black_frames: int = 3
+    white_frames: int = 2
+    ramp_levels: tuple = DEFAULT_LEVELS
+    ramp_layout: str = "patches"
+    camera_gamma: float = 1.0
+    response_model: str = "auto"
+    ambient_smooth: float = 2.0
+
+
+#: names of the stage's options (the fields of :class:`RadiometryOptions`).
+OPTIONS = tuple(f.name for f in fields(RadiometryOptions))
+_D = RadiometryOptions()
 # A camera code at or above this is treated as clipped.
 SATURATED = 250.0
 
@@ -119,8 +154,6 @@ def to_projector(calib: Calibration, img_cam: np.ndarray,
     img_proj : (Hp, Wp[, C]) float32, 0 where the camera does not see the pixel
     seen : (Hp, Wp) bool, True where the projector pixel maps inside the camera frame
     """
-    import cv2
-
     if maps is None:
         maps = projector_to_camera_maps(calib)
     wc, hc = calib.camera_size
@@ -190,6 +223,7 @@ def fit_gamma(levels: np.ndarray, values: np.ndarray, weights: np.ndarray | None
 
 def _monotone_lut(levels: np.ndarray, values: np.ndarray) -> np.ndarray:
     """(256,) LUT through (0, 0), the measured points and (255, 1): monotone cubic (PCHIP)."""
+    # scipy loads on first use (~1 s): `import rtdefocus.calib` (the player loads Calibration) stays fast.
     from scipy.interpolate import PchipInterpolator
 
     x = np.concatenate([[0.0], np.asarray(levels, np.float64), [255.0]])
@@ -206,8 +240,6 @@ def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sig
                       ) -> np.ndarray:
     """Normalised Gaussian smoothing of (H, W, C) within each plane's valid pixels, so the
     walls' different albedos do not bleed across the fold."""
-    import cv2
-
     out = np.zeros_like(img)
     for p in np.unique(plane):
         m = ((plane == p) & valid).astype(np.float32)
@@ -220,10 +252,11 @@ def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sig
 
 # --------------------------------------------------------------------------- the stage
 def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
-                         black_frames: int = 3, white_frames: int = 2,
-                         ramp_levels=DEFAULT_LEVELS, ramp_layout: str = "patches",
-                         camera_gamma: float = 1.0, response_model: str = "auto",
-                         ambient_smooth: float = 2.0) -> Calibration:
+                         black_frames: int = _D.black_frames, white_frames: int = _D.white_frames,
+                         ramp_levels=_D.ramp_levels, ramp_layout: str = _D.ramp_layout,
+                         camera_gamma: float = _D.camera_gamma,
+                         response_model: str = _D.response_model,
+                         ambient_smooth: float = _D.ambient_smooth) -> Calibration:
     """Measure the projector response, ambient Γ and albedo α; fill ``calib``'s radiometry.
 
     Parameters
@@ -233,22 +266,9 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         With the geometry section (homographies, fold); filled in place and returned.
     capture : Capturer
         Counts the captures (stage ``"radiometry"``).
-    black_frames, white_frames : int
-        Captures averaged for the black and the white frame (camera noise).
-    ramp_levels : sequence of int in 1..254
-        Gray levels of the ramp.
-    ramp_layout : ``"patches"`` | ``"frames"``
-        ``"patches"``: all levels in one capture as a grid of patches (needs no
-        interreflection between the walls); ``"frames"``: one full-frame capture per level.
-    camera_gamma : float
-        The camera's known response exponent (1 = linear camera; see the module docstring).
-    response_model : ``"auto"`` | ``"gamma"`` | ``"table"``
-        The LUT: a fitted power law, a monotone interpolation of the measurements, or the
-        power law when it fits every level within 0.01 (else the table).
-    ambient_smooth : float
-        Gaussian sigma (projector px) applied to Γ within each plane. Ambient light is
-        low-contrast and smooth while the black frame is mostly camera noise (Γ is a few
-        codes), so this cuts Γ's noise several-fold; 0 keeps it per pixel.
+    black_frames, white_frames, ramp_levels, ramp_layout, camera_gamma, response_model,
+    ambient_smooth
+        See :class:`RadiometryOptions` (their defaults are its defaults).
 
     Returns
     -------
@@ -371,4 +391,5 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
 
 
 __all__ = ["calibrate_radiometry", "fit_gamma", "linearize_camera", "mean_frame",
-           "projector_to_camera_maps", "to_projector", "ramp_pattern", "OPTIONS", "DEFAULT_LEVELS"]
+           "projector_to_camera_maps", "to_projector", "ramp_pattern", "OPTIONS", "DEFAULT_LEVELS",
+           "RadiometryOptions"]

@@ -31,6 +31,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..errors import CalibrationError, InputError
@@ -205,7 +206,7 @@ def find_ridge_points(norm: np.ndarray, valid: np.ndarray, half: int, min_peak: 
     cols : (n,) float64 sub-pixel column of the ridge centre.
     peak : (n,) float32 peak height.
     """
-    import cv2
+    # scipy loads on first use (~1 s): `import rtdefocus.calib` (the player loads Calibration) stays fast.
     from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
     h, w = norm.shape
@@ -256,8 +257,6 @@ def image_shift(a: np.ndarray, b: np.ndarray, iterations: int = 8, sigma: float 
     -------
     (dx, dy) : float camera px; gain, offset : floats.
     """
-    import cv2
-
     step = 2                      # half resolution: plenty of edge pixels, 4x less work
     A = cv2.GaussianBlur(np.asarray(a, np.float32), (0, 0), sigma)[::step, ::step]
     B = cv2.GaussianBlur(np.asarray(b, np.float32), (0, 0), sigma)[::step, ::step]
@@ -398,7 +397,6 @@ class LineDetector:
         # Lit well enough: above the absolute floor and a fair share of the brightest part
         # (shading and albedo vary, but not by 5x inside one set-up).
         valid = diff > max(self.min_contrast, 0.2 * hi)
-        import cv2
         valid = cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         frac = float(valid.mean())
         self.stats["lit_fraction"] = round(frac, 4)
@@ -437,7 +435,6 @@ class LineDetector:
         if self.valid is None:
             raise InputError("the black and white frames must be captured before the line patterns")
         if self._ridge_white is None:
-            import cv2
             # The white frame dims within a blur radius of the projector frame's edge, but a
             # line's own light does not: dividing by it there would push the ridges of the
             # outermost lines outwards. Normalise ridges by the white level spread over the ridge
@@ -508,6 +505,7 @@ class LineDetector:
 
 def _clean_line(t: np.ndarray, s: np.ndarray, window: int = 15, tol: float = 2.0):
     """Keep one ridge point per row that follows the line; returns (t, s, n_dropped)."""
+    # scipy loads on first use (~1 s): `import rtdefocus.calib` (the player loads Calibration) stays fast.
     from scipy.ndimage import median_filter
 
     n0 = t.size

@@ -1,0 +1,325 @@
+"""Defocus kernels (the PSF stage): measured dot PSFs at a few sample points -> the kernel field F.
+
+Gather form (DESIGN.md §3, docs/internals.md): pixel x's kernel is ``k_x = Σ_j w_j ψ_{s_j}``, a
+blend of at most 4 measured PSFs of x's *own* plane. A dot at projector pixel y measures column
+y of F, m(x) = k_x(x − y) ≈ k_y(x − y), so ``psf[k//2 + v, k//2 + u] = m(y + (u, v))``: a
+shift, not a flip.
+
+The stage, step by step (every step only calls ``capture``):
+
+1. **Pilot** (1 capture): 3×3 squares on a coarse grid; their spread gives a blur radius per
+   grid point, fitted per plane. For a thin lens r = A·f·|1/D_focus − 1/D| with 1/D affine on
+   a plane, so r is affine on each wall (or |affine| where the wall crosses the focus), and its
+   lines of equal blur are straight. The fit sets each dot's size and measuring window, the
+   dot spacing, how far from the fold the fold samples go, and where samples are needed.
+2. **Layout** (``layout``): ``"paper"`` — each plane's 4 corners (inset) plus 2 points on the
+   fold, blended bilinearly as in the paper (§2.4); ``"default"`` — the plane's corners,
+   points along the fold on *each* side just farther from it than the local blur (each dot
+   lights one wall only, yet measures the kernel at the fold; the two sides are staggered so
+   they share a pattern), and lines of equal predicted blur ``radius_step`` px of radius apart,
+   each sampled every ``max_spacing`` px: blending two discs of different radii is a poor disc
+   (Δr = 1 px gives ~15-20 % error mid-way), so the blur's own gradient sets the density;
+   ``"dense"`` — a regular grid per plane. Samples that would share a dot's window with a
+   corner or fold sample are dropped, so a layout fits in as few patterns as it can (one, on
+   the presets). ``cross_fold=True`` is the geometry-blind baseline the paper argues against:
+   the frame laid out as one plane (one affine radius fit) and blended across the fold; the
+   measurement itself is the same for every layout.
+3. **Dots** (a handful of captures): as many per pattern as fit with their light apart; each
+   pattern is averaged over ``averages`` captures (the rest of the ``psf_captures`` budget).
+   Where the predicted blur is small the dot is one projector pixel (bright enough, measured
+   with no deconvolution, so the rim stays sharp); where it is wide a 1-px dot's light spreads
+   over ~πr² pixels and drowns in camera noise, so the dot is 2×2 or 3×3 px and the box is
+   deconvolved by the next step (with a small ridge) — on the simulator this halves the error
+   of the faint, wide kernels and costs a little rim sharpness. The three camera channels are
+   summed (one field serves all channels).
+4. **Back to projector pixels, exactly**: the camera samples the projector-space light at each
+   camera pixel's projector position (through the homography of the wall that camera pixel
+   sees, so a dot on the fold is handled too), i.e. bilinearly between projector pixel
+   centres. So each dot's kernel is the least-squares solution of ``camera = bilinear(kernel ⊛
+   dot) + local affine background`` over the camera pixels of its window, the kernel unknown
+   only inside a disc bounded by the pilot's radius (which suppresses the noise tails and
+   needs no black frame: the background is fitted around each dot from the same averaged
+   captures). With ~2.5 camera pixels per projector pixel this is well determined, sub-pixel,
+   and energy-consistent (camera values are radiance).
+5. **Averaging and clean-up**: each raw LS kernel (divided by its energy: the albedo is α's
+   business) is averaged with its plane's kernels of the same predicted blur nearby
+   (:func:`iso_average`): along a line of equal blur a thin lens's kernel is the same, so this
+   cuts the noise where it dominates (wide, faint kernels, e.g. at a concave fold). Raw, so
+   the zero-mean noise averages away. Then the averaged kernel's equivalent disc radius
+   r = sqrt(2 E[u² + v²]) sets a tighter support (1.15 r + 1.2 px); outside it, and below 2
+   noise sigmas (the noise ring around a wide kernel), the kernel is 0; the sum is normalised
+   to 1. The common window k (odd) is set by the largest support.
+6. **F**: per pixel, indices and weights of ≤ 4 PSFs of its plane — barycentric on a per-plane
+   Delaunay triangulation (``default``, ``dense``; outside the samples' hull: the nearest hull
+   edge, clamped) or bilinear on quads (``paper``). Never across the fold unless ``cross_fold``.
+
+Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
+(6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
+:func:`calibrate_psf`, built from :class:`PsfRun` (pilot -> plans -> one measurement -> a field
+per plan), which :mod:`rtdefocus.eval_layouts` also uses to compare layouts on one measurement.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from ...errors import InputError
+from ..capture import Capturer
+from ..file import Calibration
+from .diagnostics import psf_diagnostics, radius_map
+from .dots import (
+    Measurement,
+    _clean,
+    _dot_geometry,
+    common_window,
+    dot_sizes,
+    equivalent_radius,
+    iso_average,
+    measure_psfs,
+    pack_patterns,
+)
+from .kernel_field import interpolation_field
+from .layout import LAYOUTS, SamplePlan, fold_segment, plan_samples
+from .pilot import FOLD, RadiusModel, pilot_radius
+
+log = logging.getLogger(__name__)
+
+# Kernel values below this many noise sigmas (of the averaged kernel) are set to 0: inside the
+# support a wide kernel's plateau is several sigmas up, while the noise in the ring between its
+# rim and the support bound would otherwise add mass (and inflate the radius by ~0.3 px).
+# 2 sigmas: on the simulator 0, 1, 2 give interior errors 0.083, 0.081, 0.077 (cubicle).
+_NOISE_FLOOR = 2.0
+
+
+@dataclass(frozen=True)
+class PsfOptions:
+    """Options of the PSF stage, with their defaults (``calibrate(**options)`` routes these
+    names to :func:`calibrate_psf`).
+
+    Attributes
+    ----------
+    layout : ``"default"`` | ``"paper"`` | ``"dense"`` (module docstring, step 2).
+    fold_samples : samples along the fold on each side (None: one per max_spacing / 2).
+    averages : captures averaged per dot pattern (None: the ``psf_captures`` budget left
+        after the pilot, shared among the patterns).
+    cross_fold : the geometry-blind baseline: one region, blended across the fold.
+    radius_step, max_spacing : default layout: predicted blur-radius step between lines of
+        equal blur (px), and largest sample spacing along and across them (px).
+    dense_spacing : dense layout grid step (px).
+    edge_inset : sample distance from the frame edges (px).
+    psf_captures : capture budget of the stage when ``averages`` is not given.
+    dot_size : ``"auto"`` or the side of the square dot (px). 1 px measures the kernel
+        directly; a larger dot gives dot_size² more light and is deconvolved by the LS model
+        (with a small ridge). ``"auto"`` uses 1 px where the predicted blur is small (bright
+        enough) and 2-3 px where it is large (a 1-px dot is then too faint against the noise).
+    pilot_spacing : grid step of the pilot dots (px); must exceed ~3x the largest blur radius.
+    iso_tolerance, iso_distance : each PSF is averaged with the PSFs of its plane whose
+        predicted radius is within ``iso_tolerance`` px, up to ``iso_distance`` px away
+        (:func:`~.dots.iso_average`); ``iso_tolerance=0`` keeps every PSF as measured.
+    """
+
+    layout: str = "default"
+    fold_samples: int | None = None
+    averages: int | None = None
+    cross_fold: bool = False
+    radius_step: float = 0.5
+    max_spacing: float = 150.0
+    dense_spacing: float = 50.0
+    edge_inset: float = 2.0
+    psf_captures: int = 20
+    dot_size: int | str = "auto"
+    pilot_spacing: int = 100
+    iso_tolerance: float = 0.15
+    iso_distance: float = 160.0
+
+
+#: names of the stage's options (the fields of :class:`PsfOptions`).
+OPTIONS = tuple(f.name for f in fields(PsfOptions))
+
+
+def psf_options(options: PsfOptions | None = None, **overrides) -> PsfOptions:
+    """``options`` (default: the defaults) with keyword ``overrides``; InputError naming the
+    valid options for an unknown one."""
+    unknown = sorted(set(overrides) - set(OPTIONS))
+    if unknown:
+        raise InputError(f"unknown PSF options {unknown}; valid: {sorted(OPTIONS)}")
+    return replace(options if options is not None else PsfOptions(), **overrides)
+
+
+@dataclass
+class Dots:
+    """One measurement of the union of several plans' points (step 3-5 for all of them)."""
+
+    index: dict          # (x, y) -> row of ``meas``
+    meas: Measurement
+    averages: int
+    captures: int        # the stage's captures so far (pilot + dots)
+
+
+@dataclass
+class PsfRun:
+    """The PSF stage of one calibration run, step by step: :meth:`start` (validation and the
+    pilot), :meth:`plan` per ``(layout, cross_fold)``, :meth:`measure` (the union of the plans'
+    points, measured once), :meth:`fill` per plan. :func:`calibrate_psf` does this for one plan.
+    """
+
+    calib: Calibration
+    capture: Capturer
+    options: PsfOptions
+    camera_gamma: float
+    first_count: int                    # the capturer's psf count before this run
+    model: RadiusModel
+    blind: RadiusModel | None = None    # one affine fit over the frame (cross-fold baseline)
+
+    @classmethod
+    def start(cls, calib: Calibration, capture: Capturer, options: PsfOptions,
+              layouts) -> PsfRun:
+        """Check the options, begin the stage's captures and take the pilot (step 1)."""
+        for lay, _ in layouts:
+            if lay not in LAYOUTS:
+                raise InputError(f"layout must be one of {LAYOUTS}; got {lay!r}")
+        dot_sizes(np.zeros(1), options.dot_size)       # validates
+        camera_gamma = float(calib.meta.get("radiometry", {}).get("camera_gamma", 1.0))
+        capture.begin("psf", options.psf_captures)
+        n0 = capture.counts.get("psf", 0)
+        # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
+        model = pilot_radius(calib, capture, spacing=options.pilot_spacing,
+                             camera_gamma=camera_gamma)
+        blind = None
+        if any(cf for _, cf in layouts):
+            # What a method unaware of the fold assumes: one plane, so one affine radius.
+            blind = RadiusModel(model.points, model.radii)
+            blind.fit(0, force_affine=True)
+        return cls(calib, capture, options, camera_gamma, n0, model, blind)
+
+    def plan(self, key: tuple[str, bool]) -> SamplePlan:
+        """The sample plan of ``(layout, cross_fold)`` (step 2)."""
+        o = self.options
+        return plan_samples(self.calib, self.blind if key[1] else self.model, key[0],
+                            cross_fold=key[1], dot_size=o.dot_size, fold_samples=o.fold_samples,
+                            radius_step=o.radius_step, max_spacing=o.max_spacing,
+                            dense_spacing=o.dense_spacing, edge_inset=o.edge_inset)
+
+    def measure(self, plans: list[SamplePlan]) -> Dots:
+        """Measure the union of the plans' points once (steps 3-5); the averages default to
+        what the first plan would get on its own."""
+        calib, capture, o, model = self.calib, self.capture, self.options, self.model
+        uniq: dict[tuple[int, int], int] = {}
+        upts, uplane = [], []
+        for plan in plans:
+            for (x, y), p in zip(plan.points.tolist(), plan.planes, strict=True):
+                if (x, y) not in uniq:
+                    uniq[(x, y)] = len(upts)
+                    upts.append((x, y))
+                    uplane.append(int(p))
+        upts_a = np.array(upts, int)
+        # Every dot is measured the same way whatever layout asked for it: its window and dot
+        # size follow the per-plane pilot model (a dot on the fold: the larger of the two sides).
+        uplane_a = np.array(uplane)
+        if calib.n_planes == 2:
+            on_plane = uplane_a != FOLD
+            uplane_a[on_plane] = calib.plane_of(upts_a[on_plane, 0], upts_a[on_plane, 1])
+        urad_a = np.empty(len(upts_a))
+        for p in np.unique(uplane_a):
+            sel = uplane_a == p
+            urad_a[sel] = model(upts_a[sel].astype(np.float64),
+                                int(p) if calib.n_planes == 2 else 0)
+        used = capture.counts.get("psf", 0) - self.first_count
+        averages = o.averages
+        if averages is None:
+            # What the first layout would get on its own: its patterns share the budget left.
+            first = np.array([uniq[(int(x), int(y))] for x, y in plans[0].points])
+            n_first = len(pack_patterns(upts_a[first], *_dot_geometry(
+                urad_a[first], dot_sizes(urad_a[first], o.dot_size))))
+            averages = max(2, (o.psf_captures - used) // n_first)
+        meas = measure_psfs(calib, capture, upts_a, urad_a, averages=averages,
+                            camera_gamma=self.camera_gamma, dot_size=o.dot_size)
+        log.info("psf: %d dots in %d patterns x %d averages; radius %.2f..%.2f px; snr %.0f..%.0f",
+                 len(upts_a), meas.patterns, averages, meas.radius.min(), meas.radius.max(),
+                 meas.snr.min(), meas.snr.max())
+        total = capture.counts.get("psf", 0) - self.first_count
+        return Dots(uniq, meas, averages, int(total))
+
+    def fill(self, target: Calibration, key: tuple[str, bool], plan: SamplePlan,
+             dots: Dots) -> Calibration:
+        """Fill ``target``'s psf section from the plan's PSFs: averaged, cleaned, a common
+        window, the field (steps 5-6)."""
+        o, meas = self.options, dots.meas
+        sel = np.array([dots.index[(int(x), int(y))] for x, y in plan.points])
+        # Average the raw LS kernels (zero-mean noise averages away; clipped noise would not),
+        # then clean: a support from each averaged kernel's radius, and a floor at the noise
+        # left after averaging, which removes the faint noise ring around wide kernels.
+        raw = common_window([meas.raw[i] for i in sel], meas.bound[sel])
+        n_eff = np.ones(len(raw))
+        if o.iso_tolerance > 0:
+            signed = plan.radius if plan.radius_signed is None else plan.radius_signed
+            raw, n_eff = iso_average(raw, plan.points, plan.planes, signed,
+                                     meas.noise[sel], o.iso_tolerance, o.iso_distance)
+        cleaned, tight = [], np.zeros(len(raw))
+        for j in range(len(raw)):
+            floor = _NOISE_FLOOR * meas.noise[sel[j]] / math.sqrt(n_eff[j])
+            psf_j, _, tight[j] = _clean(raw[j].astype(np.float64), float(meas.bound[sel[j]]),
+                                        floor)
+            cleaned.append(psf_j)
+        psfs = common_window(cleaned, tight)
+        idx, wts = interpolation_field(target, plan)
+        target.psf_points_proj = plan.points.astype(np.float32)
+        target.psf_plane = plan.planes.astype(np.int32)
+        target.psfs = psfs
+        target.pix_idx = idx
+        target.pix_wts = wts
+        target.meta["psf"] = {
+            "layout": key[0], "cross_fold": key[1], "samples": int(len(plan)),
+            "kinds": {k: int((plan.kinds == k).sum()) for k in np.unique(plan.kinds)},
+            "window": int(psfs.shape[1]), "patterns": meas.patterns, "averages": dots.averages,
+            "captures": dots.captures,
+            "dot_sizes": {str(d): int((meas.dots[sel] == d).sum()) for d in np.unique(meas.dots)},
+            "radius_range": [round(min(equivalent_radius(p) for p in psfs), 3),
+                             round(max(equivalent_radius(p) for p in psfs), 3)],
+            "pilot_model": {str(k): v for k, v in
+                            (self.blind if key[1] else self.model).kind.items()},
+            "median_snr": round(float(np.median(meas.snr[sel])), 1),
+            "iso_average": {"tolerance": o.iso_tolerance, "distance": o.iso_distance,
+                            "median_n_eff": round(float(np.median(n_eff)), 2)},
+        }
+        return target
+
+
+def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
+                  options: PsfOptions | None = None, **overrides) -> Calibration:
+    """Measure the defocus kernels and build the kernel field F; fill ``calib``'s psf section.
+
+    Parameters
+    ----------
+    procam : ProCam (only used through ``capture``)
+    calib : Calibration with the geometry section (radiometry optional: its camera_gamma is
+        reused); filled in place and returned.
+    capture : Capturer (stage ``"psf"``).
+    options : PsfOptions, optional
+        The stage's options (default: :class:`PsfOptions`' defaults).
+    **overrides
+        Fields of :class:`PsfOptions` (``layout="paper"``, ``dot_size=1``, ...) replacing those
+        of ``options``.
+
+    Returns
+    -------
+    Calibration
+        ``psf_points_proj`` (N, 2) float32, ``psf_plane`` (N,) int32 (-1: on the fold, both
+        planes), ``psfs`` (N, k, k) float32 unit sum, ``pix_idx`` (Hp, Wp, 4) int32,
+        ``pix_wts`` (Hp, Wp, 4) float32, and ``meta["psf"]`` (layout, counts, radii, window).
+    """
+    o = psf_options(options, **overrides)
+    key = (str(o.layout), bool(o.cross_fold))
+    run = PsfRun.start(calib, capture, o, [key])
+    plan = run.plan(key)
+    return run.fill(calib, key, plan, run.measure([plan]))
+
+
+__all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
+           "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
+           "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
+           "fold_segment", "pack_patterns", "RadiusModel", "SamplePlan", "Measurement"]
