@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= demo_out
 
-.PHONY: demo test bench lint setup system clean
+.PHONY: demo test bench lint setup system clean check-install
 
 setup: system $(STAMP)
 
@@ -24,6 +24,10 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -q -ra
+	@bash tools/check_plain_install.sh
+
+check-install: system
+	@bash tools/check_plain_install.sh
 
 lint: setup
 	$(VENV)/bin/ruff check rtdefocus tests tools

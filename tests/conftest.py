@@ -1,5 +1,6 @@
-"""Shared fixtures: one OpenCL runtime per available device, a session EGL context,
-and the tolerance table every NumPy-vs-device comparison uses."""
+"""Shared fixtures: one OpenCL runtime per available device and a session EGL context.
+
+Plain helpers (the tolerance table, ``assert_close``) live in ``tests/helpers.py``."""
 
 from __future__ import annotations
 
@@ -7,41 +8,24 @@ import os
 
 import numpy as np
 import pytest
-
-# One table of tolerances (max relative error vs the NumPy reference), used by every op test.
-TOLERANCES = {
-    "float32": 1e-4,
-    "adjoint_identity": 1e-5,
-}
+from helpers import skip_or_fail
 
 
-def assert_close(actual, expected, rtol, what="result"):
-    """Max error relative to the largest |expected|, reported with where it happens."""
-    actual = np.asarray(actual, dtype=np.float64)
-    expected = np.asarray(expected, dtype=np.float64)
-    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
-    scale = max(float(np.abs(expected).max()), 1e-30)
-    err = np.abs(actual - expected)
-    worst = np.unravel_index(int(np.argmax(err)), err.shape)
-    rel = float(err[worst]) / scale
-    assert rel <= rtol, (f"{what}: max relative error {rel:.3g} > {rtol:g} at {worst} "
-                         f"(got {actual[worst]:.6g}, expected {expected[worst]:.6g})")
+def _cl_devices() -> tuple[list, str]:
+    """The OpenCL devices to test on, and why there are none. Only a missing device is caught:
+    an import error or a bug in the runtime module must fail the run, not skip it."""
+    from rtdefocus.cl.runtime import choose_device, list_devices
+    from rtdefocus.errors import DeviceError
 
-
-def _cl_devices():
     try:
-        from rtdefocus.cl.runtime import choose_device, list_devices
         if os.environ.get("RTDEFOCUS_DEVICE", "").lower() == "all":
-            return [d for _, _, _, d in list_devices()]
-        saved = os.environ.pop("RTDEFOCUS_DEVICE", None) if os.environ.get(
-            "RTDEFOCUS_DEVICE", "").lower() == "all" else None
-        del saved
-        return [choose_device()]
-    except Exception:  # no platform: tests that need a device skip with the reason
-        return []
+            return [d for _, _, _, d in list_devices()], ""
+        return [choose_device()], ""
+    except DeviceError as exc:
+        return [], str(exc)
 
 
-_DEVICES = _cl_devices()
+_DEVICES, _NO_DEVICE_REASON = _cl_devices()
 
 
 def pytest_generate_tests(metafunc):
@@ -59,7 +43,7 @@ def cl_runtime(request):
     """A :class:`rtdefocus.cl.ClRuntime` per available device (``RTDEFOCUS_DEVICE=all``)."""
     dev = request.param
     if dev is None:
-        pytest.skip("no OpenCL device (install pocl-opencl-icd)")
+        skip_or_fail(f"no OpenCL device: {_NO_DEVICE_REASON}")
     from rtdefocus.cl.runtime import ClRuntime
     if dev.int_ptr not in _RUNTIMES:
         _RUNTIMES[dev.int_ptr] = ClRuntime(dev)
@@ -74,7 +58,7 @@ def gl_ctx():
     try:
         return create_context()
     except DeviceError as exc:
-        pytest.skip(str(exc))
+        skip_or_fail(str(exc))
 
 
 @pytest.fixture()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import TOLERANCES, assert_close
+from helpers import TOLERANCES, assert_close
 
 from rtdefocus.errors import InputError
 from rtdefocus.reference.blur import (

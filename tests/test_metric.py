@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import TOLERANCES, assert_close
+from helpers import TOLERANCES, assert_close
 
 from rtdefocus.compensate.solvers import (
     NumpyOps,

@@ -333,7 +333,6 @@ def test_warp_image_backends_and_fallback(gl, monkeypatch, caplog):
 
 @pytest.mark.parametrize("backend", ["gl", "cv2"])
 def test_cli_warp(gl, tmp_path, capsys, backend):
-    pytest.importorskip("rtdefocus.calib.geometry", reason="display_rect needs calib/geometry.py")
     from rtdefocus import cli
     from rtdefocus.imageio import read_image
     calib = _calibration(H2[:1], None)
@@ -378,7 +377,7 @@ def _rect_inside(mask: np.ndarray, aspect: float, pad: int = 6):
 
 @pytest.mark.parametrize("preset", ["cubicle", "pillar", "flat", "tilted", "offcenter"])
 def test_checkerboard_through_true_geometry_lands_on_the_rect(gl_ctx, preset):
-    sim = pytest.importorskip("rtdefocus.sim")
+    from rtdefocus import sim
     from rtdefocus.gl.warp import GLWarp
     procam = sim.VirtualProCam(preset)
     truth = procam.truth

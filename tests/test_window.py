@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import skip_or_fail
 
 from rtdefocus.errors import CaptureError, InputError
 
@@ -31,7 +32,7 @@ def xvfb():
     """A virtual X server (``:N``) for the module; skipped with the reason when it cannot start."""
     exe = shutil.which("Xvfb") or "/usr/bin/Xvfb"
     if not Path(exe).exists():
-        pytest.skip("Xvfb is not installed (Debian/Ubuntu: apt-get install xvfb)")
+        skip_or_fail("Xvfb is not installed (Debian/Ubuntu: apt-get install xvfb)")
     n = _free_display()
     proc = subprocess.Popen([exe, f":{n}", "-screen", "0", f"{SCREEN[0]}x{SCREEN[1]}x24",
                              "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -42,7 +43,7 @@ def xvfb():
     if not sock.exists():
         err = proc.stderr.read().decode(errors="replace")[-500:] if proc.poll() is not None else ""
         proc.kill()
-        pytest.skip(f"Xvfb :{n} did not start: {err or 'timeout'}")
+        skip_or_fail(f"Xvfb :{n} did not start: {err or 'timeout'}")
     yield f":{n}"
     proc.terminate()
     try:

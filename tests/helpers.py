@@ -1,0 +1,42 @@
+"""Helpers shared by the tests (imported as ``from helpers import ...``; fixtures stay in
+conftest.py): the tolerance table every NumPy-vs-device comparison uses, and a closeness check
+that reports the largest error and where it is."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+# One table of tolerances (max relative error vs the NumPy reference), used by every op test.
+TOLERANCES = {
+    "float32": 1e-4,
+    "adjoint_identity": 1e-5,
+}
+
+
+def assert_close(actual, expected, rtol, what="result"):
+    """Max error relative to the largest |expected|, reported with where it happens."""
+    actual = np.asarray(actual, dtype=np.float64)
+    expected = np.asarray(expected, dtype=np.float64)
+    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
+    scale = max(float(np.abs(expected).max()), 1e-30)
+    err = np.abs(actual - expected)
+    worst = np.unravel_index(int(np.argmax(err)), err.shape)
+    rel = float(err[worst]) / scale
+    assert rel <= rtol, (f"{what}: max relative error {rel:.3g} > {rtol:g} at {worst} "
+                         f"(got {actual[worst]:.6g}, expected {expected[worst]:.6g})")
+
+
+# CI sets RTDEFOCUS_REQUIRE_DEVICES=1: there the set-up installs PoCL and Mesa, so a missing
+# OpenCL device or EGL context is a broken set-up, not a reason to skip ~50 tests quietly.
+REQUIRE_DEVICES = os.environ.get("RTDEFOCUS_REQUIRE_DEVICES", "") not in ("", "0")
+
+
+def skip_or_fail(reason: str):
+    """Skip for a missing device, except where devices are required (then fail loudly)."""
+    if REQUIRE_DEVICES:
+        pytest.fail(f"{reason} (RTDEFOCUS_REQUIRE_DEVICES is set: the set-up should provide it)",
+                    pytrace=False)
+    pytest.skip(reason)

@@ -1,0 +1,191 @@
+"""The house rules of the package layout (issue 14), checked on the source tree:
+
+* no import cycles between rtdefocus modules — function-level (lazy) imports included, since a
+  cycle through a lazy import is still a pair of modules that cannot be understood apart;
+* no module over the size at which STYLE.md says a module should become a package;
+* every third-party module the package imports is a declared dependency (a plain
+  ``pip install .`` must run every command).
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+tomllib = pytest.importorskip("tomllib", reason="Python 3.10 has no tomllib (3.11+ runs this check)")
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "rtdefocus"
+MAX_LINES = 600
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in sorted(PKG.rglob("*.py"))}
+
+
+def _is_package(name: str, modules: dict[str, Path]) -> bool:
+    return modules[name].name == "__init__.py"
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The rtdefocus modules that ``name`` imports (at any level of the file)."""
+    pkg = name if _is_package(name, modules) else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            # `from pkg import sub` imports the submodule when there is one.
+            targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in modules else mod for a in node.names]
+        else:
+            continue
+        for t in targets:
+            while t and t not in modules:          # `import rtdefocus.x.y` -> the nearest module
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                out.add(t)
+    return out
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the rtdefocus modules it imports. A package's ``__init__`` re-exporting its own
+    submodules is a facade, not a dependency, so those edges are left out (otherwise every
+    ``from .. import __version__`` in a submodule would close a loop through its package)."""
+    modules = _modules()
+    graph = {}
+    for name, path in modules.items():
+        deps = _imports(name, path, modules)
+        if _is_package(name, modules):
+            deps = {d for d in deps if not d.startswith(name + ".")}
+        graph[name] = deps
+    return graph
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every strongly connected component with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10000))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_cycle_finder_finds_a_planted_cycle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert find_cycles(graph) == [["a", "b", "c"]]
+    assert find_cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_the_graph_sees_relative_and_lazy_imports():
+    graph = import_graph()
+    # cli imports its stages inside functions (start-up time); those edges must be seen.
+    assert "rtdefocus.errors" in graph["rtdefocus.cli"]
+    assert any(d.startswith("rtdefocus.calib") for d in graph["rtdefocus.cli"])
+
+
+def test_no_import_cycles():
+    cycles = find_cycles(import_graph())
+    assert not cycles, "import cycles between modules:\n" + "\n".join(
+        " <-> ".join(c) for c in cycles)
+
+
+@pytest.mark.parametrize("path", sorted(PKG.rglob("*.py")), ids=lambda p: str(p.relative_to(ROOT)))
+def test_module_size(path):
+    n = len(path.read_text().splitlines())
+    assert n <= MAX_LINES, (f"{path.relative_to(ROOT)} has {n} lines (> {MAX_LINES}): split it by "
+                            "concept into a package of small modules (STYLE.md)")
+
+
+# Import name -> distribution name, where they differ.
+_DIST = {"cv2": "opencv-python-headless", "skimage": "scikit-image", "yaml": "pyyaml"}
+
+
+def _third_party_imports() -> dict[str, bool]:
+    """Top-level third-party module -> whether some file imports it at module level (an
+    import that runs on ``import rtdefocus.x``, not only when a function is called)."""
+    std = set(sys.stdlib_module_names)
+    found: dict[str, bool] = {}
+    for path in PKG.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        top_level = {id(n) for n in tree.body}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [node.module or ""]
+            else:
+                continue
+            for n in names:
+                top = n.split(".")[0]
+                if top and top not in std and top != "rtdefocus":
+                    found[top] = found.get(top, False) or id(node) in top_level
+    return found
+
+
+def _requirement_name(req: str) -> str:
+    for sep in "<>=!~[; ":
+        req = req.split(sep)[0]
+    return req.strip().lower()
+
+
+def test_every_third_party_import_is_declared():
+    """A plain ``pip install .`` runs every command: each import is a dependency, or — only for
+    an import inside a function (a demo/eval extra) — declared in an optional extra."""
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = {_requirement_name(r) for r in meta["dependencies"]}
+    extras = {_requirement_name(r) for reqs in meta.get("optional-dependencies", {}).values()
+              for r in reqs}
+    problems = []
+    for mod, at_module_level in sorted(_third_party_imports().items()):
+        dist = _DIST.get(mod, mod).lower()
+        if dist in declared:
+            continue
+        if dist in extras and not at_module_level:
+            continue
+        problems.append(f"{mod} ({dist}: " + ("imported at module level, so it must be a "
+                                               "dependency" if dist in extras else
+                                               "declared nowhere") + ")")
+    assert not problems, ("pyproject.toml does not declare what rtdefocus imports; a plain "
+                          "`pip install .` would fail at run time: " + "; ".join(problems))
