@@ -17,70 +17,29 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from . import sim
+from .calib import calibrate
 from .calib.file import json_default
+from .calib.geometry_diagnostics import geometry_diagnostics
+from .calib.psf import psf_diagnostics
+from .compensate import Compensator
 from .imageio import write_image
+from .samples import demo_images
+from .scores import ImageScores, score_image
 
 log = logging.getLogger(__name__)
 
 METHODS = ("ycbcr", "rgb", "wiener")
 METHOD_LABELS = {"none": "geometry only", "ycbcr": "ours (YCbCr, Eq. 4)",
                  "rgb": "RGB least squares", "wiener": "Wiener pre-filter"}
-# Canny thresholds for the edge-pixel counts (the paper's Table 1 gives none; OpenCV's usual pair).
-CANNY_LO, CANNY_HI = 100, 200
 
 StepFn = Callable[[str], None]
-
-
-@dataclass
-class ImageScores:
-    """Scores of one input image on one set-up (camera views against the sharp reference)."""
-
-    name: str
-    psnr: dict[str, float] = field(default_factory=dict)        # method -> dB, display rect
-    ssim: dict[str, float] = field(default_factory=dict)        # method -> SSIM, display rect
-    psnr_fold: dict[str, float] = field(default_factory=dict)   # method -> dB, near-fold band
-    edges_input: dict[str, int] = field(default_factory=dict)   # geometry / defocus corrected
-    edges_output: dict[str, int] = field(default_factory=dict)  # camera views of the same
-    clipped: dict[str, float] = field(default_factory=dict)     # method -> fraction of P at 0 or 1
-    seconds: dict[str, float] = field(default_factory=dict)     # method -> compensate() time
-
-    @property
-    def edge_increase_input(self) -> float:
-        return _percent(self.edges_input["geometry"], self.edges_input["defocus"])
-
-    @property
-    def edge_increase_output(self) -> float:
-        return _percent(self.edges_output["geometry"], self.edges_output["defocus"])
-
-
-def _percent(before: int, after: int) -> float:
-    return 100.0 * (after - before) / max(before, 1)
-
-
-def edge_pixels(rgb: np.ndarray, mask: np.ndarray | None = None) -> int:
-    """Canny edge pixels of an RGB uint8 image (the paper's Table 1 measure), inside ``mask``."""
-    import cv2
-
-    edges = cv2.Canny(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), CANNY_LO, CANNY_HI) > 0
-    if mask is not None:
-        edges &= mask
-    return int(edges.sum())
-
-
-def demo_images(include_text: bool = True) -> dict[str, np.ndarray]:
-    """The demo's inputs: scikit-image's chelsea (the paper's cat), coffee, astronaut, rocket,
-    and a text slide."""
-    from .eval import photographs, text_slide
-
-    images = photographs()
-    if include_text:
-        images["text"] = text_slide((800, 600))
-    return images
 
 
 def _crop_box(calib, pad: int = 12) -> tuple[slice, slice]:
@@ -93,16 +52,12 @@ def _crop_box(calib, pad: int = 12) -> tuple[slice, slice]:
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:
-    import cv2
-
     bar = np.full((28, img.shape[1], 3), 255, np.uint8)
     cv2.putText(bar, text, (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     return np.vstack([bar, img])
 
 
 def _fit_height(img: np.ndarray, h: int) -> np.ndarray:
-    import cv2
-
     w = max(1, round(img.shape[1] * h / img.shape[0]))
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if img.shape[0] > h
                       else cv2.INTER_LINEAR)
@@ -133,8 +88,6 @@ def side_by_side(calib, rect, views: dict[str, np.ndarray], input_rgb: np.ndarra
                  height: int = 300, zoom: int = 3) -> np.ndarray:
     """One picture: input | projected, no correction | geometry only | geometry + defocus,
     each camera view cropped to the lit area, then below the zooms near the fold."""
-    import cv2
-
     rows, cols = _crop_box(calib)
     panels = [_label(_fit_height(input_rgb, height), "input")]
     for title, img in views.items():
@@ -169,61 +122,6 @@ def _pad_to_width(img: np.ndarray, width: int) -> np.ndarray:
         return img
     return np.hstack([img, np.full((img.shape[0], width - img.shape[1], 3), 255, np.uint8)])
 
-
-def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
-                fold_band_px: float = 24.0, headroom: tuple[float, float] | None = None
-                ) -> tuple[ImageScores, dict[str, np.ndarray]]:
-    """Project ``image`` every way on ``procam`` and score the camera views.
-
-    With ``headroom`` (the compensators' own), geometry only and the sharp reference show the
-    same reduced-contrast target the compensators solve for, so the scores say what
-    compensation adds at that contrast.
-
-    Returns the scores and the camera views ``{"no correction", "geometry only",
-    "geometry + defocus", "sharp reference"}`` (the last three for the ``ycbcr`` method).
-    """
-    import cv2
-
-    from .compensate.solvers import decode_lut, encode_lut, increasing_lut
-    from .eval import near_fold_mask, psnr, rect_mask, ssim
-
-    h, w = image.shape[:2]
-    rect = calib.display_rect((w, h))
-    wc, hc = calib.camera_size
-    mask = rect_mask(rect, (hc, wc))
-    band = mask & near_fold_mask(calib.fold_cam, (hc, wc), fold_band_px) \
-        if calib.n_planes == 2 else None
-    geometry = next(iter(comps.values()))
-    warped = geometry.warp(image)
-    if headroom is not None:
-        warped = encode_lut(decode_lut(warped, calib.lut, headroom), increasing_lut(calib.lut))
-    reference = procam.capture(warped, sharp=True)
-    geometry_view = procam.capture(warped)
-    raw_view = procam.capture(cv2.resize(image, calib.projector_size, interpolation=cv2.INTER_AREA))
-    scores = ImageScores(name)
-    views = {"none": geometry_view}
-    frames = {"none": warped}
-    for method, comp in comps.items():
-        t0 = time.perf_counter()
-        frame = comp.compensate(image, warm_start=False)
-        scores.seconds[method] = time.perf_counter() - t0
-        frames[method] = frame
-        views[method] = procam.capture(frame)
-    for method, view in views.items():
-        scores.psnr[method] = psnr(view, reference, mask)
-        scores.ssim[method] = ssim(view, reference, mask)
-        if band is not None:
-            scores.psnr_fold[method] = psnr(view, reference, band)
-        scores.clipped[method] = float(np.mean((frames[method] == 0) | (frames[method] == 255)))
-    ours = "ycbcr" if "ycbcr" in comps else next(iter(comps))
-    pmask = np.ones(frames["none"].shape[:2], bool)
-    scores.edges_input = {"geometry": edge_pixels(frames["none"], pmask),
-                          "defocus": edge_pixels(frames[ours], pmask)}
-    scores.edges_output = {"geometry": edge_pixels(views["none"], mask),
-                           "defocus": edge_pixels(views[ours], mask)}
-    shown = {"no correction": raw_view, "geometry only": geometry_view,
-             "geometry + defocus": views[ours], "sharp reference": reference}
-    return scores, shown
 
 
 def table_markdown(rows: list[ImageScores], preset: str) -> str:
@@ -285,12 +183,6 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     dict with ``rows`` (list of :class:`ImageScores` as dicts), ``files`` (what was written),
     ``calibration`` (captures, seconds, stats) and ``seconds`` (total).
     """
-    from . import sim
-    from .calib import calibrate
-    from .calib.geometry_diagnostics import geometry_diagnostics
-    from .calib.psf import psf_diagnostics
-    from .compensate import Compensator
-
     say = step or (lambda msg: log.info(msg))
     t_start = time.perf_counter()
     out = Path(out_dir)

@@ -88,7 +88,7 @@ def kernel_errors(calib, truth, pts: np.ndarray) -> np.ndarray:
 
 def truth_geometry(procam):
     """A geometry-only Calibration from the simulator's ground truth."""
-    from rtdefocus.eval import oracle_calibration
+    from rtdefocus.sim import oracle_calibration
 
     calib = oracle_calibration(procam)
     for name in ("response_lut", "ambient_proj", "albedo_proj", "psf_points_proj", "psf_plane",

@@ -13,17 +13,11 @@ from rtdefocus.compensate import Compensator, Metric
 from rtdefocus.compensate import compensator as compensator_mod
 from rtdefocus.compensate.solvers import decode_lut
 from rtdefocus.errors import CalibrationFileError, InputError
-from rtdefocus.eval import (
-    near_fold_mask,
-    oracle_calibration,
-    photographs,
-    psnr,
-    rect_mask,
-    ssim,
-    text_slide,
-)
 from rtdefocus.reference.blur import blur_forward_filter2d
 from rtdefocus.reference.metric import distance
+from rtdefocus.samples import photographs, text_slide
+from rtdefocus.scores import near_fold_mask, psnr, rect_mask, ssim
+from rtdefocus.sim import oracle_calibration
 
 # Smaller than the default 800x600 / 1280x960 to stay fast: the blur radii scale with the
 # projector resolution (0.8-3 px here on the cubicle), which still needs compensation.

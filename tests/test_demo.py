@@ -11,7 +11,8 @@ import pytest
 
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
-    from rtdefocus.demo import demo_images, run_demo
+    from rtdefocus.demo import run_demo
+    from rtdefocus.samples import demo_images
 
     images = demo_images()
     chosen = {k: images[k] for k in ("chelsea", "text")}

@@ -80,7 +80,9 @@ def test_checkpoint_curves_match_one_straight_run():
     """PG's chained checkpoints and FISTA's separate runs give the distances of one plain run."""
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.eval import convergence_curves, oracle_calibration, photographs
+    from rtdefocus.eval import convergence_curves
+    from rtdefocus.samples import photographs
+    from rtdefocus.sim import oracle_calibration
 
     procam = sim.VirtualProCam("cubicle", projector_size=(200, 150), camera_size=(320, 240))
     calib = oracle_calibration(procam)

@@ -182,7 +182,7 @@ def test_gather_convention_with_asymmetric_kernel(monkeypatch):
     """Disc and hexagon are centrally symmetric, so they cannot expose a flipped kernel; an
     asymmetric aperture (brighter on the +u side) can: the renderer must convolve
     (O(x) = sum_u k(u) P(x - u)), not correlate."""
-    original = sim._level_kernel
+    original = sim.optics._level_kernel
 
     def lopsided(j, aperture):
         ker = np.array(original(j, aperture))
@@ -191,7 +191,7 @@ def test_gather_convention_with_asymmetric_kernel(monkeypatch):
         ker = ker * (1.0 + 0.8 * (u > 0) + 0.3 * (v > 0))
         return ker / ker.sum()
 
-    monkeypatch.setattr(sim, "_level_kernel", lopsided)
+    monkeypatch.setattr(sim.optics, "_level_kernel", lopsided)
     pc = sim.VirtualProCam("cubicle", projector_size=(320, 240), camera_size=(320, 240))
     k = pc.truth.kernel_at(160, 120)
     assert np.abs(k - k[::-1, ::-1]).max() > 1e-3          # really asymmetric

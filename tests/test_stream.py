@@ -53,7 +53,7 @@ def virtual_calibration(preset: str = "cubicle"):
     The blur is scaled up so that a 64-px-wide projector blurs by 1.5..3 px, as an 800-px one
     does by 1.5..6 px."""
     from rtdefocus import sim
-    from rtdefocus.eval import oracle_calibration
+    from rtdefocus.sim import oracle_calibration
 
     scene = dataclasses.replace(sim.PRESETS[preset], blur_range_px=(19.0, 38.0))
     return oracle_calibration(sim.VirtualProCam(scene, projector_size=PROJ, camera_size=(96, 72)))

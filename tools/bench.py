@@ -252,7 +252,8 @@ def section_compensate(bench: Bench) -> None:
 
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.eval import oracle_calibration, photographs
+    from rtdefocus.samples import photographs
+    from rtdefocus.sim import oracle_calibration
 
     photo = photographs()["astronaut"]
     for size in bench.sizes:

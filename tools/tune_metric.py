@@ -34,7 +34,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rtdefocus import sim  # noqa: E402
 from rtdefocus.compensate import Compensator  # noqa: E402
-from rtdefocus.eval import oracle_calibration, photographs, psnr, rect_mask, ssim, text_slide  # noqa: E402
+from rtdefocus.samples import photographs, text_slide  # noqa: E402
+from rtdefocus.scores import near_fold_mask, psnr, rect_mask, ssim  # noqa: E402
+from rtdefocus.sim import oracle_calibration  # noqa: E402
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -163,7 +165,6 @@ def study_table(scenes, args) -> list[dict]:
     """PSNR / SSIM of the camera view against the sharp reference, per image and method, over the
     display rectangle and over the near-fold band (defaults of every method)."""
     from rtdefocus.compensate.solvers import decode_lut, encode_lut, increasing_lut
-    from rtdefocus.eval import near_fold_mask
 
     rows = []
     for sc in scenes:

@@ -7,15 +7,8 @@
 """
 
 from .cache import SlideCache, calibration_fingerprint, default_cache_dir
-from .loop import (
-    MODES,
-    Controls,
-    IterationBudget,
-    KeyDispatcher,
-    Player,
-    draw_overlay,
-    play,
-)
+from .controls import MODES, Controls, IterationBudget, KeyDispatcher, draw_overlay
+from .loop import Player, play
 from .sinks import (
     ImageFileSink,
     ImageSequenceSink,

@@ -20,156 +20,40 @@ the queue holds ``queue_size`` frames (default 1). When it is full the decoder r
 oldest queued frame and counts it in ``stats.dropped`` before adding the new one, so the
 solver always gets the newest frame, frames keep their capture order (the queue is FIFO and
 only the decoder removes from its head when dropping), and the source never waits. The
-per-frame iteration budget adapts to hold the target frame rate (:class:`IterationBudget`).
+per-frame iteration budget adapts to hold the target frame rate
+(:class:`~rtdefocus.stream.controls.IterationBudget`).
 
 *File rendering* (a file or memory source into a file sink): the decoder blocks on a full
 queue, so every frame is compensated and written, in order, with the full iteration budget.
 
-Still pictures (an image, a folder of slides) need no decoder: the current slide is refined
-in short chunks (warm-started from the previous chunk) until the solver converges, the result
-is cached on disk (:class:`~rtdefocus.stream.cache.SlideCache`) and the next slides are
-compensated ahead while the presenter talks, so switching is instant.
-
-Keys (window): space pause, ←/→ previous/next slide, ``c`` compensation on/off (A/B),
-``g`` geometry only, ``s`` stats overlay, ``q``/Esc quit — see :class:`KeyDispatcher`.
+Still pictures (an image, a folder of slides) need no decoder: they are played by
+:class:`~rtdefocus.stream.slides.SlidesMixin`. Keys, display modes, the per-frame iteration
+budget and the stats overlay are in :mod:`rtdefocus.stream.controls`.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import queue
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
+from .. import __version__
 from ..errors import InputError
 from ..imageio import fit_image
+from .cache import SlideCache, calibration_fingerprint
+from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .sinks import Sink
+from .slides import SlidesMixin, _Work
 from .sources import Frame, SlidesSource, Source
 from .stats import LoopStats, Series
 
 log = logging.getLogger(__name__)
 
-#: Display modes: compensated, geometry correction only, plain projector (letterboxed input).
-MODES = ("full", "geometry", "off")
-
-#: Key name -> action. Page Up/Down (presentation clickers) arrive as left/right.
-DEFAULT_KEYMAP = {
-    "space": "pause", "left": "previous", "right": "next", "c": "compensation",
-    "g": "geometry", "s": "stats", "q": "quit", "escape": "quit", "close": "quit",
-}
-
 ProgressFn = Callable[[int, "int | None"], None]
-
-
-@dataclass
-class Controls:
-    """What the viewer asked for; changed only through :class:`KeyDispatcher` (main thread)."""
-
-    paused: bool = False
-    mode: str = "full"
-    overlay: bool = False
-    quit: bool = False
-    step: int = 0          # pending slide navigation, consumed by the player
-    version: int = 0       # bumped on every change, so the player knows to redraw
-
-
-class KeyDispatcher:
-    """Turns key names into changes of :class:`Controls`.
-
-    ``c`` toggles between ``full`` and ``off`` (what the audience would see without
-    rtdefocus); ``g`` toggles between ``geometry`` and ``full``.
-    """
-
-    def __init__(self, controls: Controls, keymap: dict[str, str] | None = None):
-        self.controls = controls
-        self.keymap = dict(DEFAULT_KEYMAP if keymap is None else keymap)
-
-    def dispatch(self, key: str) -> str | None:
-        """Apply ``key``; return the action taken, or None for an unmapped key."""
-        action = self.keymap.get(key)
-        c = self.controls
-        if action is None:
-            return None
-        if action == "pause":
-            c.paused = not c.paused
-        elif action == "previous":
-            c.step -= 1
-        elif action == "next":
-            c.step += 1
-        elif action == "compensation":
-            c.mode = "off" if c.mode == "full" else "full"
-        elif action == "geometry":
-            c.mode = "full" if c.mode == "geometry" else "geometry"
-        elif action == "stats":
-            c.overlay = not c.overlay
-        elif action == "quit":
-            c.quit = True
-        else:
-            raise InputError(f"unknown key action {action!r} for key {key!r}")
-        c.version += 1
-        log.debug("key %r -> %s (%s)", key, action, c)
-        return action
-
-
-class IterationBudget:
-    """Solver iterations per frame that hold a target frame period.
-
-    After every frame, the measured seconds per iteration and the rest of the frame's time
-    (warp, transfers, overlay, present) update exponential moving averages; the budget is the
-    number of iterations that fits in what is left of the period, clamped to
-    ``[minimum, maximum]`` and allowed to grow by at most half per frame (a slow frame is
-    answered at once, a fast one cautiously).
-    """
-
-    def __init__(self, fps: float, *, initial: int = 2, minimum: int = 1, maximum: int = 20,
-                 smoothing: float = 0.3):
-        if not fps or fps <= 0:
-            raise InputError(f"target fps must be positive; got {fps}")
-        if not 1 <= minimum <= maximum:
-            raise InputError(f"need 1 <= minimum <= maximum iterations; got {minimum}, {maximum}")
-        self.period = 1.0 / fps
-        self.minimum, self.maximum = int(minimum), int(maximum)
-        self.iterations = int(min(max(initial, minimum), maximum))
-        self.alpha = smoothing
-        self.per_iteration: float | None = None
-        self.overhead: float | None = None
-
-    def _ema(self, old: float | None, new: float) -> float:
-        return new if old is None else (1 - self.alpha) * old + self.alpha * new
-
-    def update(self, frame_seconds: float, solve_seconds: float, iterations: int) -> int:
-        """Record one frame; return the budget for the next one."""
-        if iterations > 0:
-            self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
-        self.overhead = self._ema(self.overhead, max(0.0, frame_seconds - solve_seconds))
-        if self.per_iteration:
-            fit = (self.period - self.overhead) / self.per_iteration
-            grow = max(self.iterations + 1, math.ceil(self.iterations * 1.5))
-            n = min(int(fit) if math.isfinite(fit) else self.maximum, grow)
-            self.iterations = int(min(max(n, self.minimum), self.maximum))
-        return self.iterations
-
-
-def draw_overlay(frame: np.ndarray, lines: list[str]) -> np.ndarray:
-    """A copy of ``frame`` with ``lines`` of text at the top left (white on a dark outline)."""
-    import cv2
-
-    out = np.ascontiguousarray(frame).copy()
-    h = out.shape[0]
-    scale = max(0.35, h / 1400)
-    thick = max(1, round(scale * 2))
-    step = int(30 * scale) + 6
-    for i, text in enumerate(lines):
-        org = (8, 8 + step * (i + 1) - 6)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
-    return out
 
 
 class _End:
@@ -186,18 +70,7 @@ class _Failure:
 _END = _End()
 
 
-@dataclass
-class _Work:
-    """A still picture being refined: its slide index and what was done so far."""
-
-    index: int
-    iterations: int = 0
-    started: bool = False      # a chunk ran: the next continues from its P (warm start)
-    done: bool = False
-    last_out: np.ndarray | None = None
-
-
-class Player:
+class Player(SlidesMixin):
     """Runs one source through a Compensator into one sink.
 
     Parameters
@@ -279,8 +152,6 @@ class Player:
 
     def settings(self) -> dict:
         """What changes a compensated still: the slide cache keys on it (with the calibration)."""
-        from .. import __version__
-
         comp = self.comp
         names = ("method", "solver_name", "weights", "headroom", "tol", "backend")
         return {"compensator": {n: getattr(comp, n, None) for n in names},
@@ -288,8 +159,6 @@ class Player:
                 "refine_max": self.refine_max, "rtdefocus": __version__}
 
     def _make_cache(self, cache):
-        from .cache import SlideCache, calibration_fingerprint
-
         if cache is None or cache is False or isinstance(cache, SlideCache):
             return cache or None
         calib = getattr(self.comp, "calib", None)
@@ -533,194 +402,6 @@ class Player:
             return c.version
         self._idle(0.02)
         return shown_version
-
-    # ------------------------------------------------------------------ stills
-    def _chunk(self) -> int:
-        if self.budget is not None:
-            return max(1, self.budget.iterations)
-        return self.max_iterations
-
-    def _refine_step(self, index: int, image: np.ndarray) -> tuple[np.ndarray, bool]:
-        """One chunk of iterations on still ``index``; returns (frame, converged).
-
-        The first chunk of a new still starts from its target (``warm_start=False``), so the
-        result does not depend on what was shown before; later chunks continue from the
-        previous one's P.
-        """
-        w = self._work
-        if w is None or w.index != index:
-            w = self._work = _Work(index)
-        if w.done and w.last_out is not None:
-            return w.last_out, True
-        if self.iterations is not None:          # a fixed budget: exactly that, from the target
-            w.last_out, w.done = self._compensate(image, self.iterations, warm_start=False), True
-            return w.last_out, True
-        t0 = time.perf_counter()
-        n = min(self._chunk(), max(1, self.refine_max - w.iterations))
-        out = self._compensate(image, n, warm_start=w.started)
-        w.started = True
-        self._update_budget(t0)
-        info = getattr(self.comp, "last_info", None) or {}
-        its = int(info.get("iterations", n) or 0)
-        dist = info.get("distances") or []
-        w.iterations += its
-        # Converged: the solver says so, stopped early, hit the cap, or barely moves any more.
-        done = bool(info.get("converged")) or its < n or w.iterations >= self.refine_max
-        if not done and len(dist) >= 2 and dist[0] > 0:
-            per_iteration = (float(dist[0]) - float(dist[-1])) / float(dist[0]) / max(its, 1)
-            done = per_iteration < self.refine_tol
-        w.last_out, w.done = out, done
-        if done:
-            log.debug("still %d converged after %d iterations", index, w.iterations)
-        return out, done
-
-    def compensate_still(self, image: np.ndarray) -> np.ndarray:
-        """The finished compensation of a still picture, as a slide shows it once refined.
-
-        Starts from the picture's own target (not the previous frame), then runs chunks of
-        iterations until the solver converges (see ``refine_tol``, ``refine_max``), or exactly
-        ``iterations`` when the player has a fixed budget.
-
-        Parameters
-        ----------
-        image : (H, W, 3) uint8 RGB
-
-        Returns
-        -------
-        (Hp, Wp, 3) uint8
-        """
-        if self.iterations is not None:
-            return self._compensate(image, self.iterations, warm_start=False)
-        self._work = None
-        while True:
-            out, done = self._refine_step(-1, image)
-            if done:
-                self._work = None
-                return out
-
-    def _run_still(self) -> None:
-        src: SlidesSource = self.source  # type: ignore[assignment]
-        if self.sink.realtime:
-            self._run_show(src)
-            return
-        store = _SlideStore(src, self.cache)
-        for i in range(src.n_frames):
-            if self._stop.is_set():
-                break
-            t0 = time.perf_counter()
-            image = src.load(i)
-            self.stats.frames_in += 1
-            if self.controls.mode != "full":
-                out = self._render(image)
-            else:
-                out = store.get(i)
-                if out is None:
-                    out = self.compensate_still(image)
-                    store.put(i, out)
-            self._present(out, i, None, t0)
-            if self.progress:
-                self.progress(self.stats.frames_out, src.n_frames)
-
-    def _run_show(self, src: SlidesSource) -> None:
-        """Interactive slideshow in the window: refine, cache, compensate ahead, navigate."""
-        c = self.controls
-        n = src.n_frames
-        store = _SlideStore(src, self.cache, keep=max(4, 2 * self.ahead + 2))
-        current, shown, last_overlay = 0, None, 0.0
-        seen: set[int] = set()
-        while True:
-            self._handle_keys()
-            if c.quit:
-                break
-            if c.step:
-                current = min(max(current + c.step, 0), n - 1)
-                c.step = 0
-            if current not in seen:
-                seen.add(current)
-                self.stats.frames_in += 1
-            want = (current, c.mode, c.version)
-            t0 = time.perf_counter()
-            if c.mode != "full":
-                if shown != want:
-                    if self._direct_geometry():
-                        self._present_warped(src.load(current), current, None, t0)
-                    else:
-                        self._present(self._render(src.load(current)), current, None, t0)
-                    shown = want
-                else:
-                    self._idle(0.02)
-                continue
-            result = store.get(current)
-            if result is None and not c.paused:
-                # Refine the current slide, showing each chunk: sharpens in front of the audience.
-                image = src.load(current)
-                out, done = self._refine_step(current, image)
-                if done:
-                    self._work = None
-                    store.put(current, out)
-                self._present(out, current, None, t0)
-                shown = want
-                continue
-            if result is None and self._work is not None and self._work.index == current:
-                result = self._work.last_out            # paused mid-refinement: hold it
-            now = time.perf_counter()
-            if result is not None and (shown != want or (c.overlay and now - last_overlay > 0.5)):
-                self._present(result, current, None, t0)
-                shown, last_overlay = want, now
-                continue
-            # Idle: compensate the next slides ahead, one chunk at a time so keys stay live.
-            nxt = None if c.paused else next(
-                (i for i in range(current + 1, min(n, current + 1 + self.ahead)) if not store.has(i)), None)
-            if nxt is None:
-                self._idle(0.02)
-                continue
-            out, done = self._refine_step(nxt, src.load(nxt))
-            if done:
-                self._work = None
-                store.put(nxt, out)
-
-
-class _SlideStore:
-    """Compensated slides: a few in memory (LRU), all in the disk cache when one is given.
-    Each slide's presence on disk is looked up once (hashing a slide is not free)."""
-
-    def __init__(self, src: SlidesSource, cache=None, keep: int = 4):
-        self.src, self.cache, self.keep = src, cache, keep
-        self.mem: OrderedDict[int, np.ndarray] = OrderedDict()
-        self.on_disk: dict[int, bool] = {}
-
-    def _remember(self, i: int, out: np.ndarray) -> None:
-        self.mem[i] = out
-        self.mem.move_to_end(i)
-        while len(self.mem) > self.keep:
-            self.mem.popitem(last=False)
-
-    def has(self, i: int) -> bool:
-        if i in self.mem:
-            return True
-        if self.cache is None:
-            return False
-        if i not in self.on_disk:
-            self.on_disk[i] = self.cache.path(self.src.load(i)).is_file()
-        return self.on_disk[i]
-
-    def get(self, i: int) -> np.ndarray | None:
-        if i in self.mem:
-            self.mem.move_to_end(i)
-            return self.mem[i]
-        if self.cache is None or self.on_disk.get(i) is False:
-            return None
-        hit = self.cache.get(self.src.load(i))
-        self.on_disk[i] = hit is not None
-        if hit is not None:
-            self._remember(i, hit)
-        return hit
-
-    def put(self, i: int, out: np.ndarray) -> None:
-        self._remember(i, out)
-        if self.cache is not None:
-            self.cache.put(self.src.load(i), out)
-            self.on_disk[i] = True
 
 
 def play(compensator, source: Source, sink: Sink, **options) -> LoopStats:

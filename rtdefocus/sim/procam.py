@@ -1,21 +1,7 @@
-"""The built-in virtual projector-camera set-up (DESIGN.md §3 and §6).
+"""The virtual projector and camera (:class:`VirtualProCam`, a :class:`rtdefocus.ProCam`).
 
-A pinhole projector at the world origin looks along +z at two vertical half-planes (walls)
-that meet at a vertical fold line about 2.5 m away; a pinhole camera beside the projector looks
-at the lit area. :class:`VirtualProCam` implements the :class:`rtdefocus.ProCam` protocol, so
-calibration learns everything through :meth:`VirtualProCam.capture`; the exact answers are kept
-in :attr:`VirtualProCam.truth` (a :class:`GroundTruth`) for tests only.
+Radiometry, from first principles:
 
-Optics, from first principles:
-
-* Defocus (gather form, DESIGN.md §3): a thin lens of aperture radius ``A`` (metres) and focal
-  length ``f`` (projector px) focused at ``D_focus``. The surface point seen by projector pixel
-  x, at depth D along the projector axis, receives light from every projector pixel within
-  ``r(D) = A f |1/D_focus - 1/D|`` projector px of x, each with equal weight (the cone from the
-  aperture through the pixel's conjugate point has that radius at depth D, divided by the pixel
-  size D/f there). So its kernel is the aperture shape (disc, or regular hexagon) of radius r.
-  On a plane 1/D is affine in projector pixel coordinates, so r is affine per wall, continuous
-  at the fold with a slope change.
 * Irradiance: pixels of an ideal projector carry equal flux, i.e. a radiant intensity
   proportional to 1/cos^3(psi) (psi the angle to the axis). At distance d = D/cos(psi) on a
   surface tilted by theta to the ray that gives E = I cos(theta)/d^2 ∝ cos(theta) / (cos(psi) D^2),
@@ -23,12 +9,9 @@ Optics, from first principles:
 * Lambertian walls of (slightly coloured) albedo, uniform ambient irradiance, projector and
   camera response curves (gamma), camera exposure, Gaussian camera noise, uint8 quantisation.
 
-Rendering: the blur is evaluated in projector space on a grid of radii (every ``RADIUS_STEP``
-px) — each pixel linearly blends the two neighbouring grid kernels — and the ground-truth
-kernel (:meth:`GroundTruth.kernel_at`) is defined as exactly that blend, so rendering and truth
-agree to float precision. The projector-space irradiance is computed on the frame plus a margin
-(blurred light spills over the frame edge) and resampled into the camera through per-pixel maps
-found by ray casting once at construction.
+The projector-space irradiance is computed on the frame plus a margin (blurred light spills
+over the frame edge, :class:`~rtdefocus.sim.optics.BlurPlan`) and resampled into the camera
+through per-pixel maps found by ray casting once at construction.
 """
 
 from __future__ import annotations
@@ -36,295 +19,23 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
-from functools import lru_cache
 
+import cv2
 import numpy as np
 
-from .errors import InputError
-from .procam import check_pattern
+from ..errors import InputError
+from ..procam import check_pattern
+from .optics import BlurPlan
+from .patterns import test_pattern
+from .scene import PRESETS, Scene, _cast, _line_through, _look_at, _rot_z, _Wall
+from .truth import GroundTruth
 
 log = logging.getLogger(__name__)
 
-PATTERNS = ("checker", "lines", "dots")
-RADIUS_STEP = 0.25          # px: spacing of the radius grid the blur is rendered on
 SHADING_MEAN = 0.85         # mean relative irradiance over the projector frame
-_SUPERSAMPLE = 16           # sub-samples per pixel side for the area-antialiased aperture
 _OUTSIDE = -1.0e5           # remap coordinate of camera pixels that see no projector light
 
 
-@dataclass(frozen=True)
-class Scene:
-    """One arrangement of walls, projector and camera (world frame: x right, y down, z ahead).
-
-    Attributes
-    ----------
-    kind : "concave" (corner seen from inside, fold deepest), "convex" (pillar, fold nearest)
-        or "flat" (one plane, no fold).
-    fold_x_frac : where the fold crosses the projector's centre row, as a fraction of the width.
-    fold_depth : depth of the fold line along the projector axis (m).
-    wall_angles_deg : (left, right) angle of each wall to the plane square to the projector axis
-        (degrees); for "flat" only the first is used (positive: the right side recedes).
-    roll_deg : roll of the projector (and the camera mounted on it) about the projector axis
-        (degrees).
-    focus_distance, aperture_radius : projector lens focus depth and aperture radius A (m);
-        None (default) derives both from ``blur_range_px``.
-    blur_range_px : (min, max) blur radius over the frame of an 800-px-wide projector, used when
-        focus_distance / aperture_radius are None; the focus then lies in front of every wall
-        point (no wall in focus). Radii scale with the projector width (f = 1.2 W).
-    camera_position : camera centre (m) in the projector's frame, beside and a bit above it; the
-        camera is mounted on the projector (rolls with it) and looks at the lit area.
-    albedo : RGB albedo of the (left, right) wall.
-    """
-
-    kind: str
-    fold_x_frac: float = 0.5
-    fold_depth: float = 2.5
-    wall_angles_deg: tuple[float, float] = (35.0, 40.0)
-    roll_deg: float = 0.0
-    focus_distance: float | None = None
-    aperture_radius: float | None = None
-    blur_range_px: tuple[float, float] = (1.5, 6.0)
-    camera_position: tuple[float, float, float] = (0.4, -0.25, 0.0)
-    albedo: tuple[tuple[float, float, float], tuple[float, float, float]] = (
-        (0.86, 0.85, 0.81), (0.74, 0.76, 0.79))
-    description: str = ""
-
-
-PRESETS: dict[str, Scene] = {
-    "cubicle": Scene("concave", description="concave 105° corner, fold at the centre, deepest and "
-                     "blurriest; focus in front of both walls"),
-    "pillar": Scene("convex", wall_angles_deg=(30.0, 30.0),
-                    description="convex 120° corner (pillar): fold nearest and least blurred"),
-    "flat": Scene("flat", wall_angles_deg=(30.0, 0.0), description="one oblique plane, no fold"),
-    "tilted": Scene("concave", roll_deg=8.0,
-                    description="cubicle with the projector-camera rig rolled 8°: the fold is not vertical "
-                    "in either image"),
-    "offcenter": Scene("concave", fold_x_frac=0.3, wall_angles_deg=(35.0, 35.0),
-                       description="concave corner with the fold at 30% of the projector width"),
-}
-
-
-# --------------------------------------------------------------------------- kernels
-@lru_cache(maxsize=512)
-def _level_kernel(step_index: int, aperture: str) -> np.ndarray:
-    """Area-antialiased aperture of radius ``step_index * RADIUS_STEP`` px, unit sum.
-
-    Returns a read-only (k, k) float64 array, ``psf[k//2 + v, k//2 + u] = k(u, v)``.
-    """
-    rho = step_index * RADIUS_STEP
-    # Any pixel whose square can touch the shape: |u| <= rho + sqrt(2)/2.
-    h = int(math.ceil(rho + 0.7072)) if rho > 0 else 0
-    if rho <= 0:
-        ker = np.ones((1, 1))
-    else:
-        ss = _SUPERSAMPLE
-        n = (2 * h + 1) * ss
-        c = (np.arange(n) + 0.5) / ss - (h + 0.5)          # sub-sample centres, px
-        u, v = np.meshgrid(c, c)
-        if aperture == "disc":
-            inside = u * u + v * v <= rho * rho
-        else:  # regular hexagon of circumradius rho, vertices at 0°, 60°, ...
-            apothem = rho * math.sqrt(3.0) / 2.0
-            inside = np.ones_like(u, dtype=bool)
-            for ang in (30.0, 90.0, 150.0):
-                a = math.radians(ang)
-                inside &= np.abs(u * math.cos(a) + v * math.sin(a)) <= apothem
-        ker = inside.reshape(2 * h + 1, ss, 2 * h + 1, ss).sum(axis=(1, 3)).astype(np.float64)
-        if ker.sum() == 0:          # shape smaller than one sub-sample: a delta
-            ker = np.zeros((2 * h + 1, 2 * h + 1))
-            ker[h, h] = 1.0
-        ker /= ker.sum()
-    ker.setflags(write=False)
-    return ker
-
-
-def _pad_to(ker: np.ndarray, k: int) -> np.ndarray:
-    """Centre-pad (or centre-crop) a square odd kernel to (k, k)."""
-    n = ker.shape[0]
-    if n == k:
-        return ker.copy()
-    if n < k:
-        out = np.zeros((k, k), dtype=ker.dtype)
-        o = (k - n) // 2
-        out[o:o + n, o:o + n] = ker
-        return out
-    o = (n - k) // 2
-    return ker[o:o + k, o:o + k].copy()
-
-
-def blend_kernel(radius: float, aperture: str = "disc", size: int | None = None) -> np.ndarray:
-    """The simulator's kernel for a blur radius: the linear blend of the two grid kernels.
-
-    Parameters
-    ----------
-    radius : blur radius in projector px (>= 0).
-    aperture : "disc" or "hex".
-    size : odd output size k; None for the full support. A smaller size crops and
-        renormalises to unit sum.
-
-    Returns
-    -------
-    (k, k) float32, unit sum, ``psf[k//2 + v, k//2 + u] = k(u, v)`` (gather form).
-    """
-    q = float(radius) / RADIUS_STEP
-    j = int(math.floor(q))
-    t = q - j
-    k_lo, k_hi = _level_kernel(j, aperture), _level_kernel(j + 1, aperture)
-    n = k_hi.shape[0]
-    ker = (1.0 - t) * _pad_to(k_lo, n) + t * k_hi
-    if size is not None:
-        if size < 1 or size % 2 == 0:
-            raise InputError(f"kernel size must be a positive odd integer; got {size}")
-        ker = _pad_to(ker, size)
-        ker /= ker.sum()
-    return ker.astype(np.float32)
-
-
-# --------------------------------------------------------------------------- ground truth
-@dataclass
-class GroundTruth:
-    """The exact answers of a :class:`VirtualProCam` (for tests only; calibration never reads them).
-
-    Attributes
-    ----------
-    radius_map : (Hp, Wp) float32, blur radius in projector px (green channel).
-    radius_rgb : (3, Hp, Wp) float32, blur radius per channel (radius_map × chromatic scale).
-    plane_map : (Hp, Wp) int8, wall seen by each projector pixel (0/1; all 0 for ``flat``).
-    depth_map : (Hp, Wp) float32, depth of that surface point along the projector axis (m).
-    fold_proj, fold_cam : (3,) float64 line ``a x + b y + c = 0``, ``a² + b² = 1``, plane 0 where
-        it is negative; None for ``flat``.
-    H_cam_from_proj : (n_planes, 3, 3) float64 plane-induced homographies (H[2, 2] = 1).
-    albedo_proj : (Hp, Wp, 3) float32, α(x): camera linear light added by a full-on projector
-        pixel in focus (exposure × albedo × irradiance shading).
-    ambient_proj : (Hp, Wp, 3) float32, Γ(x): camera linear light with the projector black.
-    K_proj, K_cam : (3, 3) float64 intrinsics; R_cam_from_proj (3, 3), t_cam_from_proj (3,)
-        so that X_cam = R X_proj + t (m).
-    planes_proj : (n_planes, 4) float64 (n, d) with n · X_proj = d, |n| = 1, per wall.
-    focus_distance : m; blur_scale : A·f in px·m, so r = blur_scale·|1/focus_distance − 1/D|.
-    chromatic : per-channel scale of r; aperture : "disc" | "hex".
-    projector_gamma, camera_gamma, exposure : response parameters (see VirtualProCam).
-    extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the
-        projector frame; ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
-        (-1: none); ``margin``, projector px simulated beyond the frame edge.
-    """
-
-    radius_map: np.ndarray
-    radius_rgb: np.ndarray
-    plane_map: np.ndarray
-    depth_map: np.ndarray
-    fold_proj: np.ndarray | None
-    fold_cam: np.ndarray | None
-    H_cam_from_proj: np.ndarray
-    albedo_proj: np.ndarray
-    ambient_proj: np.ndarray
-    K_proj: np.ndarray
-    K_cam: np.ndarray
-    R_cam_from_proj: np.ndarray
-    t_cam_from_proj: np.ndarray
-    planes_proj: np.ndarray
-    focus_distance: float
-    blur_scale: float
-    chromatic: tuple[float, float, float]
-    aperture: str
-    projector_gamma: float
-    camera_gamma: float
-    exposure: float
-    extra: dict = field(default_factory=dict)
-
-    def kernel_at(self, x: float, y: float, size: int | None = None, channel: int = 1) -> np.ndarray:
-        """True gather kernel at projector pixel (x, y) (rounded to the nearest pixel).
-
-        Parameters
-        ----------
-        x, y : projector pixel coordinates (column, row) inside the frame.
-        size : odd kernel size k, or None for the full support (a smaller size crops and
-            renormalises).
-        channel : 0, 1, 2 = R, G, B (the chromatic scale changes the radius).
-
-        Returns
-        -------
-        (k, k) float32, unit sum, ``psf[k//2 + v, k//2 + u] = k_x(u, v)``, with
-        ``O(x) = sum_u k_x(u) P(x - u)``. It is exactly the kernel the renderer uses.
-        """
-        return blend_kernel(self.radius_at(x, y, channel), self.aperture, size)
-
-    def radius_at(self, x: float, y: float, channel: int = 1) -> float:
-        """Blur radius (projector px) at the projector pixel nearest (x, y), channel 0/1/2."""
-        _, hp, wp = self.radius_rgb.shape
-        xi, yi = int(round(float(x))), int(round(float(y)))
-        if not (0 <= xi < wp and 0 <= yi < hp):
-            raise InputError(f"projector pixel ({x}, {y}) is outside the {wp}x{hp} frame; "
-                             f"use 0 <= x < {wp}, 0 <= y < {hp}")
-        if channel not in (0, 1, 2):
-            raise InputError(f"channel must be 0, 1 or 2 (R, G, B); got {channel}")
-        return float(self.radius_rgb[channel, yi, xi])
-
-    @property
-    def n_planes(self) -> int:
-        return int(self.H_cam_from_proj.shape[0])
-
-
-# --------------------------------------------------------------------------- geometry helpers
-@dataclass(frozen=True)
-class _Wall:
-    n: np.ndarray        # unit normal (world), pointing towards the projector
-    d: float             # n · X = d
-    origin: np.ndarray   # a point on the fold (world)
-    e: np.ndarray | None  # in-plane direction away from the fold; None = whole plane
-
-
-def _rot_z(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _look_at(center: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
-    """World-to-camera rotation for a camera at ``center`` looking at ``target``, its image
-    y axis as close to ``down`` as possible."""
-    z = target - center
-    z = z / np.linalg.norm(z)
-    x = np.cross(down, z)
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.stack([x, y, z])
-
-
-def _cast(origin: np.ndarray, dirs: np.ndarray, walls: list[_Wall]) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest hit of rays ``origin + t dirs`` (dirs (3, N), world) with the walls.
-
-    Returns t (N,) float64 (inf on a miss) and the wall index (N,) int (-1 on a miss).
-    """
-    n_rays = dirs.shape[1]
-    best_t = np.full(n_rays, np.inf)
-    best_w = np.full(n_rays, -1, dtype=np.int64)
-    for i, w in enumerate(walls):
-        denom = w.n @ dirs
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (w.d - w.n @ origin) / denom
-        ok = np.isfinite(t) & (t > 1e-9)
-        if w.e is not None:
-            # Position along the wall away from the fold; a tiny tolerance so the fold itself
-            # belongs to both walls.
-            along = (origin - w.origin) @ w.e + t * (w.e @ dirs)
-            ok &= along >= -1e-9
-        better = ok & (t < best_t)
-        best_t[better] = t[better]
-        best_w[better] = i
-    return best_t, best_w
-
-
-def _line_through(p1: np.ndarray, p2: np.ndarray, neg_point: np.ndarray) -> np.ndarray:
-    """Normalised line through two image points, negative at ``neg_point`` (all (x, y))."""
-    line = np.cross([p1[0], p1[1], 1.0], [p2[0], p2[1], 1.0])
-    line = line / math.hypot(line[0], line[1])
-    if line @ [neg_point[0], neg_point[1], 1.0] > 0:
-        line = -line
-    return line
-
-
-# --------------------------------------------------------------------------- the set-up
 class VirtualProCam:
     """A virtual projector and camera looking at a two-wall corner (a :class:`rtdefocus.ProCam`).
 
@@ -400,7 +111,7 @@ class VirtualProCam:
         self._build_projector_space()
         self._build_camera_maps()
         self._build_truth()
-        self._build_blur_plan()
+        self._blur = BlurPlan(self._pad_radius, self.chromatic, self.aperture)
         log.debug("VirtualProCam(%s) built in %.2f s; green radius %.2f..%.2f px", name,
                   time.perf_counter() - t0, float(self.truth.radius_map.min()),
                   float(self.truth.radius_map.max()))
@@ -636,75 +347,8 @@ class VirtualProCam:
                    "camera_plane_map": self._cam_plane},
         )
 
-    def _build_blur_plan(self) -> None:
-        """Per radius-grid level and row strip: the pixels that use it and their blend weights."""
-        plan = []
-        groups: dict[float, list[int]] = {}
-        for c, s in enumerate(self.chromatic):
-            groups.setdefault(s, []).append(c)
-        hpad = self._pad_radius.shape[1]
-        strip = 48     # row strips keep each level's band tight when the fold is not vertical
-        for chans in groups.values():
-            q = self._pad_radius[chans[0]].astype(np.float64) / RADIUS_STEP
-            levels = []
-            for j in range(int(math.floor(q.min())), int(math.floor(q.max())) + 2):
-                w = 1.0 - np.abs(q - j)      # tent weight: the same blend as blend_kernel()
-                mask = w > 0
-                if not mask.any():
-                    continue
-                ker = _level_kernel(j, self.aperture)
-                # cv2.filter2D correlates: flip the kernel to convolve, O(x) = sum_u k(u) P(x - u).
-                flipped = np.asarray(ker[::-1, ::-1], dtype=np.float32)
-                # OpenCV filters kernels of area >= 130 through a DFT, slow on these narrow
-                # bands; row pieces of smaller area take the direct path (5-8x faster).
-                k = flipped.shape[0]
-                rows_per = max(1, min(k, 129 // k))
-                pieces = [(a, np.ascontiguousarray(flipped[a:a + rows_per]))
-                          for a in range(0, k, rows_per)]
-                for s0 in range(0, hpad, strip):
-                    sm = mask[s0:s0 + strip]
-                    rows, cols = np.flatnonzero(sm.any(axis=1)), np.flatnonzero(sm.any(axis=0))
-                    if rows.size == 0:
-                        continue
-                    y0, y1 = s0 + rows[0], s0 + rows[-1] + 1
-                    x0, x1 = cols[0], cols[-1] + 1
-                    wc = np.where(mask[y0:y1, x0:x1], w[y0:y1, x0:x1], 0.0).astype(np.float32)
-                    levels.append(((y0, y1, x0, x1), wc[..., None], k // 2, pieces))
-            plan.append((chans, levels))
-        self._blur_plan = plan
-        self._kmax = max(lv[2] for _, lvs in plan for lv in lvs)
 
     # ----------------------------------------------------------------------- rendering
-    def _blur_padded(self, lin: np.ndarray) -> np.ndarray:
-        """F P on the padded projector grid: (Hp+2m, Wp+2m, 3) float32 from (Hp, Wp, 3) linear P."""
-        import cv2
-
-        wp, hp = self.projector_size
-        m, h = self._margin, self._kmax
-        src = np.zeros((hp + 2 * (m + h), wp + 2 * (m + h), 3), np.float32)
-        src[m + h:m + h + hp, m + h:m + h + wp] = lin   # no light comes from outside the frame
-        out = np.zeros((hp + 2 * m, wp + 2 * m, 3), np.float32)
-        for chans, levels in self._blur_plan:
-            sel = slice(chans[0], chans[-1] + 1) if chans == list(range(chans[0], chans[-1] + 1)) \
-                else chans
-            for (y0, y1, x0, x1), w, k, pieces in levels:
-                ny, nx = y1 - y0, x1 - x0
-                acc = None
-                for a, piece in pieces:
-                    # Rows a.. of the flipped kernel, anchored at its first row: the crop starts
-                    # a - k rows below the band (out (Y, X) is src (Y + h, X + h)).
-                    r0 = y0 + h + a - k
-                    crop = np.ascontiguousarray(
-                        src[r0:r0 + ny + piece.shape[0] - 1, x0 + h - k:x1 + h + k][..., sel])
-                    b = cv2.filter2D(crop, -1, piece, anchor=(k, 0), borderType=cv2.BORDER_CONSTANT)
-                    b = b[:ny, k:k + nx]
-                    acc = b if acc is None else acc + b
-                if acc.ndim == 2:
-                    acc = acc[..., None]
-                np.multiply(acc, w, out=acc)
-                out[y0:y1, x0:x1, sel] += acc
-        return out
-
     def defocus(self, lin: np.ndarray) -> np.ndarray:
         """Apply the true kernel field F to a projector image in linear light.
 
@@ -722,7 +366,7 @@ class VirtualProCam:
         if lin.shape != (hp, wp, 3):
             raise InputError(f"defocus() needs a ({hp}, {wp}, 3) linear image; got {lin.shape}")
         m = self._margin
-        return self._blur_padded(lin)[m:m + hp, m:m + wp]
+        return self._blur.apply(lin, m)[m:m + hp, m:m + wp]
 
     def capture(self, pattern: np.ndarray, sharp: bool = False) -> np.ndarray:
         """Show ``pattern`` on the projector and return the camera frame.
@@ -736,8 +380,6 @@ class VirtualProCam:
         -------
         (Hc, Wc, 3) uint8 RGB camera frame.
         """
-        import cv2
-
         pattern = check_pattern(pattern, self.projector_size)
         lin = self._proj_lut[pattern]
         m = self._margin
@@ -745,7 +387,7 @@ class VirtualProCam:
             irr = np.zeros(self._pad_shade.shape + (3,), np.float32)
             irr[m:-m, m:-m] = lin
         else:
-            irr = self._blur_padded(lin)
+            irr = self._blur.apply(lin, m)
         irr *= self._pad_shade[..., None]
         cam = cv2.remap(irr, self._map_x, self._map_y, cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -761,31 +403,6 @@ class VirtualProCam:
     def __repr__(self) -> str:
         return (f"VirtualProCam({self.preset!r}, projector {self.projector_size[0]}x"
                 f"{self.projector_size[1]}, camera {self.camera_size[0]}x{self.camera_size[1]})")
-
-
-# --------------------------------------------------------------------------- patterns, timing
-def test_pattern(name: str, size: tuple[int, int]) -> np.ndarray:
-    """A named test pattern for a projector of ``size`` = (width, height).
-
-    ``checker``: 40 px squares; ``lines``: 2 px white grid lines every 50 px on black;
-    ``dots``: 5×5 px white dots every 60 px on black. Returns (H, W, 3) uint8 RGB.
-    """
-    w, h = int(size[0]), int(size[1])
-    if w <= 0 or h <= 0:
-        raise InputError(f"pattern size must be positive (width, height); got {size!r}")
-    y, x = np.mgrid[0:h, 0:w]
-    if name == "checker":
-        img = ((x // 40 + y // 40) % 2).astype(np.uint8) * 255
-    elif name == "lines":
-        img = (((x - 25) % 50 < 2) | ((y - 25) % 50 < 2)).astype(np.uint8) * 255
-    elif name == "dots":
-        img = (((x - 28) % 60 < 5) & ((y - 28) % 60 < 5)).astype(np.uint8) * 255
-    else:
-        raise InputError(f"unknown test pattern {name!r}; choose one of {', '.join(PATTERNS)}")
-    return np.repeat(img[:, :, None], 3, axis=2)
-
-
-test_pattern.__test__ = False   # not a pytest test, despite the name
 
 
 def capture_seconds(procam: VirtualProCam | None = None, repeats: int = 5,

@@ -1,0 +1,201 @@
+"""Image scores: how close a camera view is to the sharp reference.
+
+* :func:`psnr`, :func:`ssim` — scores of a camera view against a reference, optionally inside a
+  mask: :func:`rect_mask` (the display rectangle), :func:`near_fold_mask` (the band around the
+  fold);
+* :func:`edge_pixels` — Canny edge counts, as the paper's Table 1;
+* :func:`score_image` — project one image every way on a set-up and score every view
+  (:class:`ImageScores`); the demo's table and ``rtdefocus eval`` are built from it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .compensate.solvers import decode_lut, encode_lut, increasing_lut
+from .errors import InputError
+
+__all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "edge_pixels", "ImageScores",
+           "score_image"]
+
+# Canny thresholds for the edge-pixel counts (the paper's Table 1 gives none; OpenCV's usual pair).
+CANNY_LO, CANNY_HI = 100, 200
+
+
+@dataclass
+class ImageScores:
+    """Scores of one input image on one set-up (camera views against the sharp reference)."""
+
+    name: str
+    psnr: dict[str, float] = field(default_factory=dict)        # method -> dB, display rect
+    ssim: dict[str, float] = field(default_factory=dict)        # method -> SSIM, display rect
+    psnr_fold: dict[str, float] = field(default_factory=dict)   # method -> dB, near-fold band
+    edges_input: dict[str, int] = field(default_factory=dict)   # geometry / defocus corrected
+    edges_output: dict[str, int] = field(default_factory=dict)  # camera views of the same
+    clipped: dict[str, float] = field(default_factory=dict)     # method -> fraction of P at 0 or 1
+    seconds: dict[str, float] = field(default_factory=dict)     # method -> compensate() time
+
+    @property
+    def edge_increase_input(self) -> float:
+        return _percent(self.edges_input["geometry"], self.edges_input["defocus"])
+
+    @property
+    def edge_increase_output(self) -> float:
+        return _percent(self.edges_output["geometry"], self.edges_output["defocus"])
+
+
+def _percent(before: int, after: int) -> float:
+    return 100.0 * (after - before) / max(before, 1)
+
+
+def edge_pixels(rgb: np.ndarray, mask: np.ndarray | None = None) -> int:
+    """Canny edge pixels of an RGB uint8 image (the paper's Table 1 measure), inside ``mask``."""
+    edges = cv2.Canny(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), CANNY_LO, CANNY_HI) > 0
+    if mask is not None:
+        edges &= mask
+    return int(edges.sum())
+
+
+def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape:
+        raise InputError(f"images to compare must have the same shape; got {a.shape} and {b.shape}")
+    return a, b
+
+
+def _data_range(a: np.ndarray, data_range: float | None) -> float:
+    if data_range is not None:
+        return float(data_range)
+    return 255.0 if a.dtype == np.uint8 else 1.0
+
+
+def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
+         data_range: float | None = None) -> float:
+    """Peak signal-to-noise ratio (dB) of ``a`` against ``b``.
+
+    Parameters
+    ----------
+    a, b : (H, W) or (H, W, C) arrays of the same shape (uint8: range 255, float: range 1).
+    mask : (H, W) bool, optional — only these pixels count.
+    data_range : peak value, overriding the dtype's.
+
+    Returns
+    -------
+    float (inf for identical images).
+    """
+    a, b = _pair(a, b)
+    peak = _data_range(a, data_range)
+    diff = a.astype(np.float64) - b.astype(np.float64)
+    if mask is not None:
+        diff = diff[np.asarray(mask, dtype=bool)]
+    mse = float(np.mean(diff ** 2)) if diff.size else float("nan")
+    return float("inf") if mse == 0 else 10.0 * np.log10(peak ** 2 / mse)
+
+
+def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
+         data_range: float | None = None) -> float:
+    """Mean structural similarity (``skimage.metrics.structural_similarity``, 7×7 windows,
+    colour channels averaged) of ``a`` against ``b``, over ``mask`` when given.
+
+    Parameters
+    ----------
+    a, b : (H, W) or (H, W, 3) arrays of the same shape.
+    mask : (H, W) bool, optional — average the SSIM map over these pixels only.
+    data_range : peak value, overriding the dtype's.
+    """
+    # scikit-image is an optional extra (rtdefocus[demo]) and slow to import: load it on use.
+    from skimage.metrics import structural_similarity
+
+    a, b = _pair(a, b)
+    channel_axis = 2 if a.ndim == 3 else None
+    score, smap = structural_similarity(a, b, data_range=_data_range(a, data_range),
+                                        channel_axis=channel_axis, full=True)
+    if mask is None:
+        return float(score)
+    if smap.ndim == 3:
+        smap = smap.mean(axis=2)
+    return float(smap[np.asarray(mask, dtype=bool)].mean())
+
+
+def near_fold_mask(fold_line: np.ndarray, shape: tuple[int, int], half_width: float) -> np.ndarray:
+    """Pixels within ``half_width`` px of the line ``a x + b y + c = 0`` (a² + b² = 1).
+
+    Parameters
+    ----------
+    fold_line : (3,) float, e.g. ``calib.fold_cam`` or ``truth.fold_proj``.
+    shape : (H, W) of the image the mask is for.
+    half_width : px.
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    a, b, c = (float(v) for v in np.asarray(fold_line, dtype=np.float64))
+    norm = np.hypot(a, b)
+    if norm == 0:
+        raise InputError("the fold line is all zeros (a one-plane set-up has no fold band)")
+    ys, xs = np.mgrid[0:shape[0], 0:shape[1]]
+    return np.abs(a * xs + b * ys + c) / norm <= half_width
+
+
+def rect_mask(rect: tuple[int, int, int, int], shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool mask of an OpenCV Rect ``(x, y, w, h)`` (clipped to the image)."""
+    x, y, w, h = (int(v) for v in rect)
+    m = np.zeros(shape, dtype=bool)
+    m[max(0, y):max(0, y + h), max(0, x):max(0, x + w)] = True
+    return m
+
+
+def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
+                fold_band_px: float = 24.0, headroom: tuple[float, float] | None = None
+                ) -> tuple[ImageScores, dict[str, np.ndarray]]:
+    """Project ``image`` every way on ``procam`` and score the camera views.
+
+    With ``headroom`` (the compensators' own), geometry only and the sharp reference show the
+    same reduced-contrast target the compensators solve for, so the scores say what
+    compensation adds at that contrast.
+
+    Returns the scores and the camera views ``{"no correction", "geometry only",
+    "geometry + defocus", "sharp reference"}`` (the last three for the ``ycbcr`` method).
+    """
+    h, w = image.shape[:2]
+    rect = calib.display_rect((w, h))
+    wc, hc = calib.camera_size
+    mask = rect_mask(rect, (hc, wc))
+    band = mask & near_fold_mask(calib.fold_cam, (hc, wc), fold_band_px) \
+        if calib.n_planes == 2 else None
+    geometry = next(iter(comps.values()))
+    warped = geometry.warp(image)
+    if headroom is not None:
+        warped = encode_lut(decode_lut(warped, calib.lut, headroom), increasing_lut(calib.lut))
+    reference = procam.capture(warped, sharp=True)
+    geometry_view = procam.capture(warped)
+    raw_view = procam.capture(cv2.resize(image, calib.projector_size, interpolation=cv2.INTER_AREA))
+    scores = ImageScores(name)
+    views = {"none": geometry_view}
+    frames = {"none": warped}
+    for method, comp in comps.items():
+        t0 = time.perf_counter()
+        frame = comp.compensate(image, warm_start=False)
+        scores.seconds[method] = time.perf_counter() - t0
+        frames[method] = frame
+        views[method] = procam.capture(frame)
+    for method, view in views.items():
+        scores.psnr[method] = psnr(view, reference, mask)
+        scores.ssim[method] = ssim(view, reference, mask)
+        if band is not None:
+            scores.psnr_fold[method] = psnr(view, reference, band)
+        scores.clipped[method] = float(np.mean((frames[method] == 0) | (frames[method] == 255)))
+    ours = "ycbcr" if "ycbcr" in comps else next(iter(comps))
+    pmask = np.ones(frames["none"].shape[:2], bool)
+    scores.edges_input = {"geometry": edge_pixels(frames["none"], pmask),
+                          "defocus": edge_pixels(frames[ours], pmask)}
+    scores.edges_output = {"geometry": edge_pixels(views["none"], mask),
+                           "defocus": edge_pixels(views[ours], mask)}
+    shown = {"no correction": raw_view, "geometry only": geometry_view,
+             "geometry + defocus": views[ours], "sharp reference": reference}
+    return scores, shown

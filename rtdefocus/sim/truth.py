@@ -1,0 +1,93 @@
+"""What the virtual set-up really is: the exact answers calibration should find (tests only)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .optics import blend_kernel
+
+
+@dataclass
+class GroundTruth:
+    """The exact answers of a :class:`VirtualProCam` (for tests only; calibration never reads them).
+
+    Attributes
+    ----------
+    radius_map : (Hp, Wp) float32, blur radius in projector px (green channel).
+    radius_rgb : (3, Hp, Wp) float32, blur radius per channel (radius_map × chromatic scale).
+    plane_map : (Hp, Wp) int8, wall seen by each projector pixel (0/1; all 0 for ``flat``).
+    depth_map : (Hp, Wp) float32, depth of that surface point along the projector axis (m).
+    fold_proj, fold_cam : (3,) float64 line ``a x + b y + c = 0``, ``a² + b² = 1``, plane 0 where
+        it is negative; None for ``flat``.
+    H_cam_from_proj : (n_planes, 3, 3) float64 plane-induced homographies (H[2, 2] = 1).
+    albedo_proj : (Hp, Wp, 3) float32, α(x): camera linear light added by a full-on projector
+        pixel in focus (exposure × albedo × irradiance shading).
+    ambient_proj : (Hp, Wp, 3) float32, Γ(x): camera linear light with the projector black.
+    K_proj, K_cam : (3, 3) float64 intrinsics; R_cam_from_proj (3, 3), t_cam_from_proj (3,)
+        so that X_cam = R X_proj + t (m).
+    planes_proj : (n_planes, 4) float64 (n, d) with n · X_proj = d, |n| = 1, per wall.
+    focus_distance : m; blur_scale : A·f in px·m, so r = blur_scale·|1/focus_distance − 1/D|.
+    chromatic : per-channel scale of r; aperture : "disc" | "hex".
+    projector_gamma, camera_gamma, exposure : response parameters (see VirtualProCam).
+    extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the
+        projector frame; ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
+        (-1: none); ``margin``, projector px simulated beyond the frame edge.
+    """
+
+    radius_map: np.ndarray
+    radius_rgb: np.ndarray
+    plane_map: np.ndarray
+    depth_map: np.ndarray
+    fold_proj: np.ndarray | None
+    fold_cam: np.ndarray | None
+    H_cam_from_proj: np.ndarray
+    albedo_proj: np.ndarray
+    ambient_proj: np.ndarray
+    K_proj: np.ndarray
+    K_cam: np.ndarray
+    R_cam_from_proj: np.ndarray
+    t_cam_from_proj: np.ndarray
+    planes_proj: np.ndarray
+    focus_distance: float
+    blur_scale: float
+    chromatic: tuple[float, float, float]
+    aperture: str
+    projector_gamma: float
+    camera_gamma: float
+    exposure: float
+    extra: dict = field(default_factory=dict)
+
+    def kernel_at(self, x: float, y: float, size: int | None = None, channel: int = 1) -> np.ndarray:
+        """True gather kernel at projector pixel (x, y) (rounded to the nearest pixel).
+
+        Parameters
+        ----------
+        x, y : projector pixel coordinates (column, row) inside the frame.
+        size : odd kernel size k, or None for the full support (a smaller size crops and
+            renormalises).
+        channel : 0, 1, 2 = R, G, B (the chromatic scale changes the radius).
+
+        Returns
+        -------
+        (k, k) float32, unit sum, ``psf[k//2 + v, k//2 + u] = k_x(u, v)``, with
+        ``O(x) = sum_u k_x(u) P(x - u)``. It is exactly the kernel the renderer uses.
+        """
+        return blend_kernel(self.radius_at(x, y, channel), self.aperture, size)
+
+    def radius_at(self, x: float, y: float, channel: int = 1) -> float:
+        """Blur radius (projector px) at the projector pixel nearest (x, y), channel 0/1/2."""
+        _, hp, wp = self.radius_rgb.shape
+        xi, yi = int(round(float(x))), int(round(float(y)))
+        if not (0 <= xi < wp and 0 <= yi < hp):
+            raise InputError(f"projector pixel ({x}, {y}) is outside the {wp}x{hp} frame; "
+                             f"use 0 <= x < {wp}, 0 <= y < {hp}")
+        if channel not in (0, 1, 2):
+            raise InputError(f"channel must be 0, 1 or 2 (R, G, B); got {channel}")
+        return float(self.radius_rgb[channel, yi, xi])
+
+    @property
+    def n_planes(self) -> int:
+        return int(self.H_cam_from_proj.shape[0])

@@ -1,0 +1,131 @@
+"""What the viewer controls, and what the player shows on top: display modes, key dispatch,
+the per-frame iteration budget and the stats overlay.
+
+Keys (window): space pause, ←/→ previous/next slide, ``c`` compensation on/off (A/B),
+``g`` geometry only, ``s`` stats overlay, ``q``/Esc quit — see :class:`KeyDispatcher`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: Display modes: compensated, geometry correction only, plain projector (letterboxed input).
+MODES = ("full", "geometry", "off")
+
+#: Key name -> action. Page Up/Down (presentation clickers) arrive as left/right.
+DEFAULT_KEYMAP = {
+    "space": "pause", "left": "previous", "right": "next", "c": "compensation",
+    "g": "geometry", "s": "stats", "q": "quit", "escape": "quit", "close": "quit",
+}
+
+
+@dataclass
+class Controls:
+    """What the viewer asked for; changed only through :class:`KeyDispatcher` (main thread)."""
+
+    paused: bool = False
+    mode: str = "full"
+    overlay: bool = False
+    quit: bool = False
+    step: int = 0          # pending slide navigation, consumed by the player
+    version: int = 0       # bumped on every change, so the player knows to redraw
+
+
+class KeyDispatcher:
+    """Turns key names into changes of :class:`Controls`.
+
+    ``c`` toggles between ``full`` and ``off`` (what the audience would see without
+    rtdefocus); ``g`` toggles between ``geometry`` and ``full``.
+    """
+
+    def __init__(self, controls: Controls, keymap: dict[str, str] | None = None):
+        self.controls = controls
+        self.keymap = dict(DEFAULT_KEYMAP if keymap is None else keymap)
+
+    def dispatch(self, key: str) -> str | None:
+        """Apply ``key``; return the action taken, or None for an unmapped key."""
+        action = self.keymap.get(key)
+        c = self.controls
+        if action is None:
+            return None
+        if action == "pause":
+            c.paused = not c.paused
+        elif action == "previous":
+            c.step -= 1
+        elif action == "next":
+            c.step += 1
+        elif action == "compensation":
+            c.mode = "off" if c.mode == "full" else "full"
+        elif action == "geometry":
+            c.mode = "full" if c.mode == "geometry" else "geometry"
+        elif action == "stats":
+            c.overlay = not c.overlay
+        elif action == "quit":
+            c.quit = True
+        else:
+            raise InputError(f"unknown key action {action!r} for key {key!r}")
+        c.version += 1
+        log.debug("key %r -> %s (%s)", key, action, c)
+        return action
+
+
+class IterationBudget:
+    """Solver iterations per frame that hold a target frame period.
+
+    After every frame, the measured seconds per iteration and the rest of the frame's time
+    (warp, transfers, overlay, present) update exponential moving averages; the budget is the
+    number of iterations that fits in what is left of the period, clamped to
+    ``[minimum, maximum]`` and allowed to grow by at most half per frame (a slow frame is
+    answered at once, a fast one cautiously).
+    """
+
+    def __init__(self, fps: float, *, initial: int = 2, minimum: int = 1, maximum: int = 20,
+                 smoothing: float = 0.3):
+        if not fps or fps <= 0:
+            raise InputError(f"target fps must be positive; got {fps}")
+        if not 1 <= minimum <= maximum:
+            raise InputError(f"need 1 <= minimum <= maximum iterations; got {minimum}, {maximum}")
+        self.period = 1.0 / fps
+        self.minimum, self.maximum = int(minimum), int(maximum)
+        self.iterations = int(min(max(initial, minimum), maximum))
+        self.alpha = smoothing
+        self.per_iteration: float | None = None
+        self.overhead: float | None = None
+
+    def _ema(self, old: float | None, new: float) -> float:
+        return new if old is None else (1 - self.alpha) * old + self.alpha * new
+
+    def update(self, frame_seconds: float, solve_seconds: float, iterations: int) -> int:
+        """Record one frame; return the budget for the next one."""
+        if iterations > 0:
+            self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
+        self.overhead = self._ema(self.overhead, max(0.0, frame_seconds - solve_seconds))
+        if self.per_iteration:
+            fit = (self.period - self.overhead) / self.per_iteration
+            grow = max(self.iterations + 1, math.ceil(self.iterations * 1.5))
+            n = min(int(fit) if math.isfinite(fit) else self.maximum, grow)
+            self.iterations = int(min(max(n, self.minimum), self.maximum))
+        return self.iterations
+
+
+def draw_overlay(frame: np.ndarray, lines: list[str]) -> np.ndarray:
+    """A copy of ``frame`` with ``lines`` of text at the top left (white on a dark outline)."""
+    out = np.ascontiguousarray(frame).copy()
+    h = out.shape[0]
+    scale = max(0.35, h / 1400)
+    thick = max(1, round(scale * 2))
+    step = int(30 * scale) + 6
+    for i, text in enumerate(lines):
+        org = (8, 8 + step * (i + 1) - 6)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return out
