@@ -1,5 +1,5 @@
 /* solver.cl - the update steps of the compensation solve (DESIGN.md §3) and the reductions of
- * its exact line search; NumPy twin: rtdefocus/compensate/solvers.py (NumpyOps).
+ * its exact line search; NumPy twin: rtdefocus/reference/ops.py (NumpyOps).
  *
  *   min_P d(F P, I)  subject to 0 <= P <= 1,   grad d = 2 F^T q,  q = Q (F P - I)  (metric.cl)
  *

@@ -184,8 +184,8 @@ def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
     """
     import cv2
 
-    from .compensate.solvers import decode_lut, encode_lut, increasing_lut
     from .eval import near_fold_mask, psnr, rect_mask, ssim
+    from .reference.lut import decode_lut, encode_lut, increasing_lut
 
     h, w = image.shape[:2]
     rect = calib.display_rect((w, h))

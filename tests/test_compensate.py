@@ -11,7 +11,6 @@ import pytest
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator, Metric
 from rtdefocus.compensate import compensator as compensator_mod
-from rtdefocus.compensate.solvers import decode_lut
 from rtdefocus.errors import CalibrationFileError, InputError
 from rtdefocus.eval import (
     near_fold_mask,
@@ -23,6 +22,7 @@ from rtdefocus.eval import (
     text_slide,
 )
 from rtdefocus.reference.blur import blur_forward_filter2d
+from rtdefocus.reference.lut import decode_lut
 from rtdefocus.reference.metric import distance
 
 # Smaller than the default 800x600 / 1280x960 to stay fast: the blur radii scale with the
