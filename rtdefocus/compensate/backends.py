@@ -1,4 +1,5 @@
-"""The one place a solve backend is built by name: :func:`make_solve_ops`.
+"""The one place a solve backend is built by name: :func:`make_solve_ops`, and
+:func:`make_solver` (ops and :class:`~.solvers.Solver` in one call, for tests and tools).
 
 A backend is an *ops object*, the solve's primitive operations on one frame size:
 :class:`rtdefocus.reference.ops.NumpyOps` (host arrays, the reference) or
@@ -11,10 +12,11 @@ from __future__ import annotations
 from ..cl.runtime import get_runtime
 from ..cl.solve import ClSolveOps
 from ..errors import InputError
-from ..reference.metric import Metric
+from ..reference.metric import DEFAULT_WEIGHTS, Metric
 from ..reference.ops import NumpyOps
+from .solvers import Solver, check_solver
 
-__all__ = ["BACKENDS", "make_solve_ops"]
+__all__ = ["BACKENDS", "make_solve_ops", "make_solver"]
 
 BACKENDS = ("numpy", "opencl")
 
@@ -47,3 +49,25 @@ def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None
         return ClSolveOps(runtime or get_runtime(), psfs, idx, wts, metric,
                           blur_variant=blur_variant)
     raise InputError(f"backend must be one of {BACKENDS}; got {backend!r}")
+
+
+def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
+                solver: str = "fista", runtime=None, blur: str = "gather",
+                blur_variant: str | None = None) -> Solver:
+    """A :class:`~.solvers.Solver` for a kernel field on a backend named by string.
+
+    Parameters
+    ----------
+    psfs, idx, wts : the kernel field F (docs/internals.md); ``idx`` (H, W, 4) fixes the size.
+    metric : Metric, optional
+        Default: :meth:`Metric.ycbcr` with :data:`~rtdefocus.reference.metric.DEFAULT_WEIGHTS`.
+    backend : "numpy" | "opencl"
+    solver : "fista" | "pg"
+    runtime, blur, blur_variant : as for :func:`make_solve_ops`.
+    """
+    check_solver(solver)                 # before any device work
+    if metric is None:
+        metric = Metric.ycbcr(DEFAULT_WEIGHTS)
+    ops = make_solve_ops(backend, psfs, idx, wts, metric, runtime=runtime, blur=blur,
+                         blur_variant=blur_variant)
+    return Solver(ops, solver=solver)

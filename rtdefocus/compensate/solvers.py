@@ -18,8 +18,8 @@ Two solvers behind one interface (:class:`Solver`), each on two backends with th
 
 Backends: the solver is handed an ops object — :class:`rtdefocus.reference.ops.NumpyOps` (the
 reference) or :class:`rtdefocus.cl.solve.ClSolveOps` (OpenCL), with the same primitive
-operations (:func:`rtdefocus.compensate.backends.make_solve_ops` builds one by name); the
-iteration logic below is shared, so the two backends differ only in float32 rounding.
+operations (:mod:`rtdefocus.compensate.backends` builds one by name; this module imports
+neither); the iteration logic below is shared, so the two backends differ only in float32 rounding.
 
 Baselines kept for comparison: :func:`rtdefocus.compensate.wiener.wiener_prefilter` (Brown et
 al. 2006); the per-channel RGB least squares of Zhang & Nayar 2006 is this solver with
@@ -37,8 +37,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..reference.lut import apply_headroom
-from ..reference.metric import DEFAULT_WEIGHTS, Metric
-from .backends import make_solve_ops
+from ..reference.metric import Metric
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +46,8 @@ __all__ = ["SOLVERS", "SolveInfo", "Solver", "lipschitz_estimate"]
 SOLVERS = ("fista", "pg")
 
 
-def _check_solver(solver: str) -> None:
+def check_solver(solver: str) -> None:
+    """Raise :class:`InputError` unless ``solver`` is one of :data:`SOLVERS`."""
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {SOLVERS}; got {solver!r}")
 
@@ -120,7 +120,8 @@ class Solver:
     ops : NumpyOps or ClSolveOps
         The backend: the primitive operations on one frame size (its ``shape``), for one kernel
         field (its ``psfs``) and :class:`Metric` (its ``metric``). Build one by name with
-        :func:`rtdefocus.compensate.backends.make_solve_ops`, or use :meth:`from_field`.
+        :func:`rtdefocus.compensate.backends.make_solve_ops`, or use
+        :func:`~rtdefocus.compensate.backends.make_solver` for both steps.
     solver : "fista" | "pg"
 
     Notes
@@ -131,7 +132,7 @@ class Solver:
     """
 
     def __init__(self, ops, *, solver: str = "fista"):
-        _check_solver(solver)
+        check_solver(solver)
         self.ops = ops
         self.metric = ops.metric
         self.solver = solver
@@ -146,29 +147,6 @@ class Solver:
         self._fp, self._fp_alt = new(), new()
         self._G, self._G_prev = new(), new()         # F^T q at P and at P_prev (FISTA)
         self._s, self._fs = new(), new()
-
-    @classmethod
-    def from_field(cls, psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
-                   solver: str = "fista", runtime=None, blur: str = "gather",
-                   blur_variant: str | None = None) -> Solver:
-        """A solver for a kernel field on a backend named by string (tests, tools).
-
-        Parameters
-        ----------
-        psfs, idx, wts : the kernel field F (docs/internals.md); ``idx`` (H, W, 4) fixes the size.
-        metric : Metric, optional
-            Default: :meth:`Metric.ycbcr` with :data:`DEFAULT_WEIGHTS`.
-        backend : "numpy" | "opencl"
-        solver : "fista" | "pg"
-        runtime, blur, blur_variant : passed to :func:`~.backends.make_solve_ops`.
-        """
-        _check_solver(solver)
-        if metric is None:
-            metric = Metric.ycbcr(DEFAULT_WEIGHTS)
-        ops = make_solve_ops(backend, psfs, idx, wts, metric, runtime=runtime, blur=blur,
-                             blur_variant=blur_variant)
-        return cls(ops, solver=solver)
-
     # ------------------------------------------------------------------ public
     def solve(self, target: np.ndarray, P0: np.ndarray | None = None, *, iterations: int = 30,
               tol: float = 0.0, headroom=None) -> tuple[np.ndarray, SolveInfo]:
