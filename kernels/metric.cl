@@ -38,27 +38,10 @@
 #define MODE_UPDATE 1     /* e = (a + t b) - c  */
 #define MODE_PLAIN 2      /* e = a              */
 
-/* Tree sum of a float2 over the work-group; the total is valid in work-item 0 only. */
-inline float2 wg_sum2(__local float2 *scratch, float2 v)
+/* Both quantities of a work-group into partials (common.h: wg_sum4, store_partials). */
+inline void reduce_group(__local float4 *scratch, const float2 acc, __global float *partials)
 {
-    const int lid = get_local_id(1) * LX + get_local_id(0);
-    scratch[lid] = v;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (int s = WG / 2; s > 0; s >>= 1) {
-        if (lid < s) scratch[lid] += scratch[lid + s];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    return scratch[0];
-}
-
-inline void store_partials(__global float *partials, const float2 total)
-{
-    if (get_local_id(0) == 0 && get_local_id(1) == 0) {
-        const int ng = get_num_groups(0) * get_num_groups(1);
-        const int g = get_group_id(1) * get_num_groups(0) + get_group_id(0);
-        partials[g] = total.x;
-        partials[ng + g] = total.y;
-    }
+    store_partials(partials, wg_sum4(scratch, (float4)(acc, 0.0f, 0.0f), WG), 2);
 }
 
 #if defined(VARIANT_GPU)
@@ -165,14 +148,6 @@ inline float16 e16(const int mode, __global const float *restrict a, __global co
     return v;
 }
 
-inline float hsum16(const float16 v)
-{
-    const float8 a = v.lo + v.hi;
-    const float4 b = a.lo + a.hi;
-    const float2 c = b.lo + b.hi;
-    return c.x + c.y;
-}
-
 #define MATROW(A, r, v0, v1, v2) (A##_##r##0 * (v0) + A##_##r##1 * (v1) + A##_##r##2 * (v2))
 
 inline float2 metric_pixel(const int mode, __global const float *restrict a,
@@ -231,9 +206,9 @@ void metric_residual(__global const float *restrict fp, __global const float *re
                      __global float *restrict q, __global float *restrict partials,
                      const int H, const int W)
 {
-    __local float2 scratch[WG];
+    __local float4 scratch[WG];
     const float2 acc = metric_pixel(MODE_RESIDUAL, fp, fp, 0.0f, target, q, q, fp, 0, H, W);
-    store_partials(partials, wg_sum2(scratch, acc));
+    reduce_group(scratch, acc, partials);
 }
 
 /* The line-search update of the blurred image and the new field in one pass:
@@ -245,9 +220,9 @@ void metric_update(__global const float *restrict fp, __global const float *rest
                    __global float *restrict q, __global float *restrict partials,
                    const int H, const int W)
 {
-    __local float2 scratch[WG];
+    __local float4 scratch[WG];
     const float2 acc = metric_pixel(MODE_UPDATE, fp, fs, t, target, fp_out, q, fp, 0, H, W);
-    store_partials(partials, wg_sum2(scratch, acc));
+    reduce_group(scratch, acc, partials);
 }
 
 /* The curvature of d along a direction s, from fs = F s: partials[0] += <fs, Q fs>; with
@@ -256,8 +231,8 @@ __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void metric_curvature(__global const float *restrict fs, __global const float *restrict v,
                       const int with_dot, __global float *restrict partials, const int H, const int W)
 {
-    __local float2 scratch[WG];
+    __local float4 scratch[WG];
     const float2 acc = metric_pixel(MODE_PLAIN, fs, fs, 0.0f, fs, partials, partials, v,
                                     with_dot, H, W);
-    store_partials(partials, wg_sum2(scratch, acc));
+    reduce_group(scratch, acc, partials);
 }

@@ -1,5 +1,5 @@
 /* solver.cl - the update steps of the compensation solve (DESIGN.md §3) and the reductions of
- * its exact line search; NumPy twin: rtdefocus/compensate/solvers.py (NumpyOps).
+ * its exact line search; NumPy twin: rtdefocus/reference/ops.py (NumpyOps).
  *
  *   min_P d(F P, I)  subject to 0 <= P <= 1,   grad d = 2 F^T q,  q = Q (F P - I)  (metric.cl)
  *
@@ -49,13 +49,7 @@ inline void vst(__global float *restrict p, const size_t i, const size_t n, cons
     for (int j = 0; j < 16 && i + j < n; ++j) p[i + j] = tmp[j];
 }
 
-inline float vsum(const vecf v)
-{
-    const float8 a = v.lo + v.hi;
-    const float4 b = a.lo + a.hi;
-    const float2 c = b.lo + b.hi;
-    return c.x + c.y;
-}
+inline float vsum(const vecf v) { return hsum16(v); }
 #elif VEC == 1
 typedef float vecf;
 inline vecf vld(__global const float *restrict p, const size_t i, const size_t n) { return i < n ? p[i] : 0.0f; }
@@ -67,30 +61,6 @@ inline float vsum(const vecf v) { return v; }
 
 /* Element index of chunk j of this work-item. */
 #define CHUNK(j) (((size_t)get_group_id(0) * WG * ITEMS + (size_t)(j) * WG + get_local_id(0)) * VEC)
-
-/* Tree sum over the work-group of up to 4 quantities; the total is valid in work-item 0. */
-inline float4 wg_sum4(__local float4 *scratch, float4 v)
-{
-    const int lid = get_local_id(0);
-    scratch[lid] = v;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (int s = WG / 2; s > 0; s >>= 1) {
-        if (lid < s) scratch[lid] += scratch[lid + s];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    return scratch[0];
-}
-
-inline void store_partials(__global float *partials, const float4 total, const int nq)
-{
-    if (get_local_id(0) == 0) {
-        const int ng = get_num_groups(0), g = get_group_id(0);
-        partials[g] = total.x;
-        if (nq > 1) partials[ng + g] = total.y;
-        if (nq > 2) partials[2 * ng + g] = total.z;
-        if (nq > 3) partials[3 * ng + g] = total.w;
-    }
-}
 
 /* s = -g where P may move that way, else 0.  partials[0] = sum s^2 (= -<g, s>). */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
@@ -107,7 +77,7 @@ void pg_direction(__global const float *restrict P, __global const float *restri
         vst(s, i, n, si);
         acc += si * si;
     }
-    store_partials(partials, wg_sum4(scratch, (float4)(vsum(acc), 0.0f, 0.0f, 0.0f)), 1);
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(acc), 0.0f, 0.0f, 0.0f), WG), 1);
 }
 
 /* P <- clamp(P + t s, 0, 1); delta = new P - old P.
@@ -130,7 +100,7 @@ void pg_step(__global float *restrict P, __global const float *restrict s, const
         a1 += pn * pn;
         a2 += select((vecf)(0.0f), (vecf)(1.0f), pn != moved);
     }
-    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), vsum(a2), 0.0f)), 3);
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), vsum(a2), 0.0f), WG), 3);
 }
 
 /* x <- x + a y. */
@@ -170,7 +140,7 @@ void fista_step(__global const float *restrict P, __global const float *restrict
         a0 += d * d;
         a1 += pn * pn;
     }
-    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), 0.0f, 0.0f)), 2);
+    store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), 0.0f, 0.0f), WG), 2);
 }
 
 /* dst = clamp(src, 0, 1). */
@@ -194,7 +164,7 @@ void reduce_partials(__global const float *restrict partials, const int n_groups
     const int k = get_group_id(0);
     float acc = 0.0f;
     for (int g = get_local_id(0); g < n_groups; g += WG) acc += partials[k * n_groups + g];
-    const float4 total = wg_sum4(scratch, (float4)(acc, 0.0f, 0.0f, 0.0f));
+    const float4 total = wg_sum4(scratch, (float4)(acc, 0.0f, 0.0f, 0.0f), WG);
     if (get_local_id(0) == 0) out[k] = total.x;
 }
 

@@ -25,10 +25,10 @@ from . import sim
 from .calib import calibrate
 from .calib.capture import Capturer
 from .calib.file import json_default
-from .eval_layouts import calibrate_psf_layouts
 from .cl.runtime import opencl_available
 from .compensate import Compensator
 from .errors import InputError
+from .eval_layouts import calibrate_psf_layouts
 from .evalreport import eval_markdown, plot_convergence
 from .samples import demo_images
 from .scores import psnr, rect_mask, score_image

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .compensate.solvers import decode_lut, encode_lut, increasing_lut
 from .errors import InputError
+from .reference.lut import decode_lut, encode_lut, increasing_lut
 
 __all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "edge_pixels", "ImageScores",
            "score_image"]

@@ -11,9 +11,9 @@ import pytest
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator, Metric
 from rtdefocus.compensate import compensator as compensator_mod
-from rtdefocus.compensate.solvers import decode_lut
 from rtdefocus.errors import CalibrationFileError, InputError
 from rtdefocus.reference.blur import blur_forward_filter2d
+from rtdefocus.reference.lut import decode_lut
 from rtdefocus.reference.metric import distance
 from rtdefocus.samples import photographs, text_slide
 from rtdefocus.scores import near_fold_mask, psnr, rect_mask, ssim

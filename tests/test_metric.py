@@ -7,15 +7,10 @@ import numpy as np
 import pytest
 from helpers import TOLERANCES, assert_close
 
-from rtdefocus.compensate.solvers import (
-    NumpyOps,
-    Solver,
-    decode_lut,
-    encode_lut,
-    increasing_lut,
-    lipschitz_estimate,
-)
+from rtdefocus.compensate.backends import make_solver
+from rtdefocus.compensate.solvers import lipschitz_estimate
 from rtdefocus.reference.blur import blur_adjoint, blur_forward
+from rtdefocus.reference.lut import decode_lut, encode_lut, increasing_lut
 from rtdefocus.reference.metric import (
     M_RGB_TO_YCBCR,
     Metric,
@@ -28,6 +23,7 @@ from rtdefocus.reference.metric import (
     rgb_to_ycbcr,
     ycbcr_to_rgb,
 )
+from rtdefocus.reference.ops import NumpyOps
 
 H, W = 238, 318          # odd sizes: W is not a multiple of the 16-pixel chunks, 3HW of 16
 METRICS = {
@@ -322,11 +318,11 @@ def test_cl_solver_steps_match_numpy(cl_runtime, field, images, solver, variant)
     psfs, idx, wts = field
     target, _ = images
     m = METRICS["ycbcr"]
-    s_cl = Solver(psfs, idx, wts, m, backend="opencl", solver=solver, runtime=cl_runtime,
-                  blur_variant=variant)
+    s_cl = make_solver(psfs, idx, wts, m, backend="opencl", solver=solver,
+                       runtime=cl_runtime, blur_variant=variant)
     for n in (1, 3):
         if (solver, n) not in _NUMPY_SOLVES:    # the reference is the same for both variants
-            s_np = Solver(psfs, idx, wts, m, backend="numpy", solver=solver)
+            s_np = make_solver(psfs, idx, wts, m, backend="numpy", solver=solver)
             _NUMPY_SOLVES[solver, n] = s_np.solve(target, iterations=n)
         P_np, i_np = _NUMPY_SOLVES[solver, n]
         P_cl, i_cl = s_cl.solve(target, iterations=n)
@@ -351,7 +347,8 @@ def small_problem():
 
 def check_monotone_in_range(problem, solver, backend, runtime=None):
     (psfs, idx, wts), target = problem
-    s = Solver(psfs, idx, wts, METRICS["ycbcr"], backend=backend, solver=solver, runtime=runtime)
+    s = make_solver(psfs, idx, wts, METRICS["ycbcr"], backend=backend, solver=solver,
+                    runtime=runtime)
     P, info = s.solve(target, iterations=25)
     d = np.array(info.distances)
     # (part of the target is saturated, so d cannot approach 0; ~15 % is what 25 steps buy)
@@ -375,8 +372,8 @@ def test_cl_solvers_never_increase_the_distance_and_stay_in_range(cl_runtime, sm
 @pytest.mark.parametrize("solver", ["pg", "fista"])
 def test_warm_start_converges_in_fewer_iterations(cl_runtime, small_problem, solver):
     (psfs, idx, wts), target = small_problem
-    s = Solver(psfs, idx, wts, METRICS["ycbcr"], backend="opencl", solver=solver,
-               runtime=cl_runtime)
+    s = make_solver(psfs, idx, wts, METRICS["ycbcr"], backend="opencl", solver=solver,
+                    runtime=cl_runtime)
     tol = 2e-3
     P_cold, cold = s.solve(target, iterations=400, tol=tol)
     assert cold.converged

@@ -188,9 +188,8 @@ def section_iteration(bench: Bench) -> None:
     """One full solver iteration (gradient, step, line search/momentum, reductions): OpenCL
     (FISTA and PG, the device's own kernel shape) vs the NumPy reference and the cv2.filter2D
     form of the same NumPy solver; the paper needed 10-12 s at 800x600 on one core."""
-    from rtdefocus.compensate import DEFAULT_WEIGHTS
-    from rtdefocus.compensate.solvers import Solver
-    from rtdefocus.reference.metric import Metric
+    from rtdefocus.compensate.backends import make_solver
+    from rtdefocus.reference.metric import DEFAULT_WEIGHTS, Metric
 
     metric = Metric.ycbcr(DEFAULT_WEIGHTS)
     for size in bench.sizes:
@@ -198,8 +197,8 @@ def section_iteration(bench: Bench) -> None:
             psfs, idx, wts = bench.field(size, radius)
             target = bench.image(size, seed=1)
             for name in ("fista", "pg"):
-                s = Solver(psfs, idx, wts, metric, backend="opencl", solver=name,
-                           runtime=bench.runtime)
+                s = make_solver(psfs, idx, wts, metric, backend="opencl", solver=name,
+                                runtime=bench.runtime)
                 s.ops.upload(target, s.target)
                 s.start_from_target()
                 times = _iteration_times(bench, s, 10, warmup=3, repeats=max(3, bench.repeats // 3))
@@ -210,7 +209,8 @@ def section_iteration(bench: Bench) -> None:
             for form, impl in (("filter2d", "cv2.filter2D"), ("gather", "numpy")):
                 if form == "gather" and (bench.quick and (_large(size) or radius > 6)):
                     continue
-                s = Solver(psfs, idx, wts, metric, backend="numpy", solver="fista", blur=form)
+                s = make_solver(psfs, idx, wts, metric, backend="numpy", solver="fista",
+                                blur=form)
                 s.ops.upload(target, s.target)
                 s.start_from_target()
                 n = 1 if (_large(size) or radius > 6 or form == "gather") else 2

@@ -164,7 +164,7 @@ def study_wiener(scenes, args) -> list[dict]:
 def study_table(scenes, args) -> list[dict]:
     """PSNR / SSIM of the camera view against the sharp reference, per image and method, over the
     display rectangle and over the near-fold band (defaults of every method)."""
-    from rtdefocus.compensate.solvers import decode_lut, encode_lut, increasing_lut
+    from rtdefocus.reference.lut import decode_lut, encode_lut, increasing_lut
 
     rows = []
     for sc in scenes:

@@ -58,11 +58,14 @@ class ClBlur:
     ----------
     shape : tuple
         ``(C, H, W)`` of the images :meth:`forward` and :meth:`adjoint` take.
+    psfs : (N, k, k) float32
+        The PSFs on the host, as checked.
     variant : str
     """
 
     def __init__(self, runtime, psfs: np.ndarray, idx: np.ndarray, wts: np.ndarray,
                  channels: int = 3, variant: str | None = None):
+        # pyopencl on first use, not at import: NumPy-only runs skip its start-up cost.
         import pyopencl as cl
         import pyopencl.array as cla
 
@@ -75,6 +78,7 @@ class ClBlur:
             raise InputError(f"variant must be 'cpu' or 'gpu'; got {variant!r}.")
         self.runtime = runtime
         self.variant = variant
+        self.psfs = psfs
         self.k = int(psfs.shape[1])
         self.radius = self.k // 2
         h, w = idx.shape[:2]

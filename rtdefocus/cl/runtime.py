@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import warnings
 from dataclasses import dataclass, field
 
 from ..errors import DeviceError, ProgramBuildError
@@ -131,8 +132,6 @@ class ClRuntime:
 
 def build_program(context, filename: str, options: list[str]):
     """Build ``kernels/<filename>``; raise :class:`ProgramBuildError` with the full log on failure."""
-    import warnings
-
     cl = _cl()
     src = kernel_source(filename)
     try:

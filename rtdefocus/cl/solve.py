@@ -1,6 +1,6 @@
 """The compensation solve's device operations (``kernels/metric.cl``, ``kernels/solver.cl``).
 
-:class:`ClSolveOps` is the OpenCL twin of :class:`rtdefocus.compensate.solvers.NumpyOps`: the
+:class:`ClSolveOps` is the OpenCL twin of :class:`rtdefocus.reference.ops.NumpyOps`: the
 same primitive operations (blur, metric field, projected steps, reductions, LUT decode/encode)
 on planar ``(3, H, W)`` float32 device arrays. Everything is sized for one projector frame and
 allocated once; programs are built once per (context, constants) by the runtime's cache, so a
@@ -15,8 +15,8 @@ import logging
 
 import numpy as np
 
-from ..compensate.solvers import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..errors import InputError
+from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
 from .blur import ClBlur
 
@@ -51,6 +51,13 @@ class ClSolveOps:
     blur_variant : {"cpu", "gpu"}, optional
         Passed to :class:`ClBlur` (default: by device type).
 
+    Attributes
+    ----------
+    psfs : (N, k, k) float32, the field's PSFs on the host (the solver's step size is estimated
+        from them).
+    metric : Metric
+    shape : ``(3, H, W)`` of every image.
+
     Notes
     -----
     Buffers are ``pyopencl.array.Array`` objects; :meth:`new` allocates one (zeroed) and is meant
@@ -60,6 +67,7 @@ class ClSolveOps:
     backend = "opencl"
 
     def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None):
+        # pyopencl on first use, not at import: NumPy-only runs skip its start-up cost.
         import pyopencl as cl
         import pyopencl.array as cla
 
@@ -68,6 +76,7 @@ class ClSolveOps:
         self.queue = runtime.queue
         self.metric = metric
         self.blur = ClBlur(runtime, psfs, idx, wts, channels=3, variant=blur_variant)
+        self.psfs = self.blur.psfs
         self.shape = self.blur.shape
         _, h, w = self.shape
         self._h, self._w = np.int32(h), np.int32(w)
@@ -238,7 +247,7 @@ class ClSolveOps:
 
     def encode(self, P, lut_increasing: np.ndarray) -> np.ndarray:
         """uint8 (H, W, 3) codes of P through the inverse of a strictly increasing LUT
-        (:func:`rtdefocus.compensate.solvers.encode_lut` is the twin)."""
+        (:func:`rtdefocus.reference.lut.encode_lut` is the twin)."""
         mid, tab = self._lut_buffers(lut_increasing, encoder=True)
         self._k["encode_lut"](self.queue, self._enc_global, (self._wg,), P.data, mid.data,
                               tab.data, self._codes.data, np.int32(self.n // 3))

@@ -14,19 +14,14 @@ import time
 
 import numpy as np
 
-from ..errors import CalibrationFileError, InputError
-from ..reference.metric import Metric
-from .solvers import (
-    SOLVERS,
-    SolveInfo,
-    Solver,
-    apply_headroom,
-    decode_lut,
-    encode_lut,
-    headroom_params,
-    increasing_lut,
-    wiener_prefilter,
-)
+from ..cl import runtime as cl_runtime
+from ..errors import CalibrationFileError, DeviceError, InputError
+from ..gl.warp import warp_image
+from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
+from ..reference.metric import DEFAULT_WEIGHTS, Metric
+from .backends import make_solve_ops
+from .solvers import SOLVERS, SolveInfo, Solver
+from .wiener import wiener_prefilter
 
 log = logging.getLogger(__name__)
 
@@ -34,15 +29,9 @@ __all__ = ["Compensator", "METHODS", "DEFAULT_WEIGHTS", "DEFAULT_ITERATIONS"]
 
 METHODS = ("ycbcr", "rgb", "wiener", "none")
 
-# Eq. 4 weights (w1 luma, w2 chroma, w3 luma gradient, w4 chroma gradient), chosen by
-# `tools/tune_metric.py weights --iterations 40` on the simulator (cubicle, tilted, pillar at
-# 400x300 with the oracle kernels; four photographs and a text slide; FISTA at the default
-# budget): ranked by the luma-SSIM gain of the camera view over geometry only, against the sharp
-# reference; ties (within 2e-4) broken by RGB PSNR. The luma-gradient term helps luma (w3 0 ->
-# 0.25: luma PSNR gain +4.97 -> +5.19 dB) until it over-smooths (w3 = 1: +5.14 dB); w4 and a
-# lower w2 only trade colour PSNR. Per-channel RGB least squares: luma PSNR +5.07 dB, luma SSIM
-# +0.0258, RGB PSNR +4.86 dB; these weights: +5.19 dB, +0.0258, +4.64 dB.
-DEFAULT_WEIGHTS = (1.0, 0.5, 0.25, 0.0)
+# DEFAULT_WEIGHTS (Eq. 4) are defined, with how they were chosen, beside Metric
+# (rtdefocus/reference/metric.py).
+
 # Iteration budget per frame (`tools/tune_metric.py solver`, cubicle, oracle kernels, five
 # images): camera-view PSNR gain over geometry only for FISTA at 10/20/40/80 iterations was
 # +3.2/+4.0/+4.6/+5.0 dB at 400x300 and +1.9/+2.6/+3.3/+3.6 dB at 800x600 — the knee is at 40
@@ -131,9 +120,9 @@ class Compensator:
         if method in ("ycbcr", "rgb"):
             metric = Metric.ycbcr(self.weights) if method == "ycbcr" else Metric.rgb()
             # NumPy: the filter2D form of F (exactly the same operator, several times faster).
-            self._solver = Solver(calib.psfs, calib.pix_idx, calib.pix_wts, metric,
-                                  backend=self.backend, solver=solver,
-                                  blur="filter2d", blur_variant=blur_variant)
+            ops = make_solve_ops(self.backend, calib.psfs, calib.pix_idx, calib.pix_wts, metric,
+                                 blur="filter2d", blur_variant=blur_variant)
+            self._solver = Solver(ops, solver=solver)
 
     # ------------------------------------------------------------------ public
     @property
@@ -146,8 +135,6 @@ class Compensator:
 
     def warp(self, image: np.ndarray) -> np.ndarray:
         """Geometry correction only: (H, W, 3) uint8 input -> (Hp, Wp, 3) uint8 projector frame."""
-        from ..gl.warp import warp_image
-
         return warp_image(self.calib, image, backend=self.warp_backend)
 
     def reset(self) -> None:
@@ -278,13 +265,10 @@ def _resolve_backend(backend: str) -> str:
     global _warned_no_opencl
     if backend == "numpy":
         return "numpy"
-    from ..cl.runtime import opencl_available
-
-    ok, why = opencl_available()
+    ok, why = cl_runtime.opencl_available()
     if ok:
         return "opencl"
     if backend == "opencl":
-        from ..errors import DeviceError
         raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
     if not _warned_no_opencl:
         log.warning("no OpenCL device; compensating with the (slow) NumPy backend: %s", why)

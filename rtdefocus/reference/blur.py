@@ -20,6 +20,7 @@ weights). Both are exact; the second is the speed baseline of ``tools/bench.py``
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..errors import InputError
@@ -184,8 +185,6 @@ def blur_forward_filter2d(img: np.ndarray, psfs: np.ndarray, idx: np.ndarray,
     -------
     ndarray float32, same shape as ``img``.
     """
-    import cv2
-
     planes, flat = _as_planes(img)
     planes = planes.astype(np.float32, copy=False)
     psfs, idx, wts = check_field(psfs, idx, wts, planes.shape[1:])
@@ -214,8 +213,6 @@ def blur_adjoint_filter2d(img: np.ndarray, psfs: np.ndarray, idx: np.ndarray,
     -------
     ndarray float32, same shape as ``img``.
     """
-    import cv2
-
     planes, flat = _as_planes(img)
     planes = planes.astype(np.float32, copy=False)
     psfs, idx, wts = check_field(psfs, idx, wts, planes.shape[1:])

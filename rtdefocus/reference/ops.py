@@ -1,0 +1,140 @@
+"""The compensation solve's primitive operations on host arrays: the NumPy twin of
+:class:`rtdefocus.cl.solve.ClSolveOps`, and the backend :class:`rtdefocus.compensate.Solver`
+runs on without an OpenCL device.
+
+Every method takes and returns what its device twin does (planar ``(3, H, W)`` float32 arrays,
+here NumPy ones), so the solver's iteration logic is shared and the two backends differ only in
+float32 rounding. Reductions are summed in float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .blur import (
+    blur_adjoint,
+    blur_adjoint_filter2d,
+    blur_forward,
+    blur_forward_filter2d,
+    check_field,
+)
+from .lut import encode_lut, inverse_lut_tables
+from .metric import Metric, metric_field
+
+__all__ = ["NumpyOps"]
+
+
+def _vdot(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.add.reduce(a * b, axis=None, dtype=np.float64))
+
+
+class NumpyOps:
+    """The solve's primitive operations on host arrays (the reference twin of ClSolveOps).
+
+    Parameters
+    ----------
+    psfs, idx, wts : the kernel field F; ``idx`` (H, W, 4) fixes the size.
+    metric : Metric
+    blur : "gather" (:func:`blur_forward`, the readable reference) or "filter2d" (the same
+        operator through cv2.filter2D per PSF, several times faster on a CPU).
+
+    Attributes
+    ----------
+    psfs : (N, k, k) float32, the field's PSFs (the solver's step size is estimated from them).
+    metric : Metric
+    shape : ``(3, H, W)`` of every image.
+    """
+
+    backend = "numpy"
+
+    def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather"):
+        self.psfs, self.idx, self.wts = check_field(psfs, idx, wts)
+        if blur not in ("gather", "filter2d"):
+            raise InputError(f"blur must be 'gather' or 'filter2d'; got {blur!r}")
+        self.metric = metric
+        self.blur_form = blur
+        self._fwd = blur_forward if blur == "gather" else blur_forward_filter2d
+        self._adj = blur_adjoint if blur == "gather" else blur_adjoint_filter2d
+        h, w = self.idx.shape[:2]
+        self.shape = (3, h, w)
+        self._enc_key: bytes | None = None      # the LUT whose encoder tables are cached
+        self._enc_tables = None
+
+    def new(self) -> np.ndarray:
+        return np.zeros(self.shape, np.float32)
+
+    def upload(self, host, dst) -> None:
+        host = np.asarray(host, dtype=np.float32)
+        if host.shape != self.shape:
+            raise InputError(f"expected a {self.shape} (3, H, W) image, got {host.shape}")
+        dst[...] = host
+
+    def download(self, src) -> np.ndarray:
+        return src.copy()
+
+    def copy(self, src, dst) -> None:
+        dst[...] = src
+
+    def clamp_copy(self, src, dst) -> None:
+        np.clip(src, 0.0, 1.0, out=dst)
+
+    def finish(self) -> None:
+        pass
+
+    def forward(self, src, dst) -> None:
+        dst[...] = self._fwd(src, self.psfs, self.idx, self.wts)
+
+    def adjoint(self, src, dst) -> None:
+        dst[...] = self._adj(src, self.psfs, self.idx, self.wts)
+
+    def metric_residual(self, fp, target, q) -> float:
+        e = fp - target
+        q[...] = metric_field(e, self.metric)
+        return _vdot(e, q)
+
+    def metric_update(self, fp, fs, t, target, fp_out, q) -> float:
+        fp_out[...] = fp + np.float32(t) * fs
+        return self.metric_residual(fp_out, target, q)
+
+    def metric_curvature(self, fs, v=None) -> tuple[float, float]:
+        qf = metric_field(fs, self.metric)
+        return _vdot(fs, qf), (_vdot(fs, v) if v is not None else 0.0)
+
+    def pg_direction(self, P, g, s) -> float:
+        blocked = ((P <= 0) & (g > 0)) | ((P >= 1) & (g < 0))
+        np.negative(g, out=s)
+        s[blocked] = 0.0
+        return _vdot(s, s)
+
+    def pg_step(self, P, s, t, delta) -> tuple[float, float, int]:
+        moved = P + np.float32(t) * s
+        new = np.clip(moved, 0.0, 1.0)
+        np.subtract(new, P, out=delta)
+        P[...] = new
+        return _vdot(delta, delta), _vdot(new, new), int(np.count_nonzero(new != moved))
+
+    def axpy(self, x, y, a) -> None:
+        x += np.float32(a) * y
+
+    def fista_step(self, P, P_prev, G, G_prev, beta, step, P_out, sums=True) -> tuple[float, float]:
+        y, gy = P, G
+        if beta != 0.0:
+            y = P + np.float32(beta) * (P - P_prev)
+            gy = G + np.float32(beta) * (G - G_prev)
+        np.clip(y - np.float32(step) * gy, 0.0, 1.0, out=P_out)
+        if not sums:
+            return float("nan"), float("nan")
+        d = P_out - P
+        return _vdot(d, d), _vdot(P_out, P_out)
+
+    def decode(self, codes, lut, lo, scale, dst) -> None:
+        lut = np.asarray(lut, dtype=np.float32)
+        for c in range(3):
+            dst[c] = np.float32(lo) + np.float32(scale) * lut[c][codes[..., c]]
+
+    def encode(self, P, lut_increasing) -> np.ndarray:
+        key = np.asarray(lut_increasing, np.float32).tobytes()
+        if self._enc_key != key:
+            self._enc_key, self._enc_tables = key, inverse_lut_tables(lut_increasing)
+        return encode_lut(P, lut_increasing, self._enc_tables)
