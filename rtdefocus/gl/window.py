@@ -190,6 +190,9 @@ class ProjectorWindow:
         self._warp = None
         self._tex = None
         self._glfw_held = False
+        #: The monitor's refresh rate in Hz (60 when windowed or unknown): the projector's
+        #: frame period for camera exposures.
+        self.refresh_rate = 60.0
         _glfw_acquire()
         self._glfw_held = True
         saved = self._egl.save()  # creating a glfw window un-currents the caller's context
@@ -208,6 +211,7 @@ class ProjectorWindow:
                 glfw.window_hint(glfw.GREEN_BITS, mode.bits.green)
                 glfw.window_hint(glfw.BLUE_BITS, mode.bits.blue)
                 glfw.window_hint(glfw.REFRESH_RATE, mode.refresh_rate)
+                self.refresh_rate = float(mode.refresh_rate) or 60.0
                 # Do not minimise the projector's window when the operator clicks on the laptop.
                 glfw.window_hint(glfw.AUTO_ICONIFY, glfw.FALSE)
             else:
@@ -329,9 +333,13 @@ class ProjectorWindow:
         self._vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.viewport = (0, 0, W, H)
 
-    def show(self, frame: np.ndarray) -> None:
+    def show(self, frame: np.ndarray) -> float:
         """Present ``frame`` ((H, W, 3) uint8 RGB) now: letterboxed when its size differs from
-        the window's, pixel for pixel when it matches. Also processes window events."""
+        the window's, pixel for pixel when it matches. Also processes window events.
+
+        Blocks until the swap is done (``glFinish`` after the swap: with vsync, until the frame
+        is scanned out) and returns that ``time.perf_counter()``, the moment a camera's settle
+        time starts from."""
         import glfw
 
         frame = np.asarray(frame)
@@ -350,7 +358,10 @@ class ProjectorWindow:
             self._frame, self._warped = frame, None
             self._draw()
             glfw.swap_buffers(self._win)
+            self.ctx.finish()
+            shown = time.perf_counter()
         glfw.poll_events()
+        return shown
 
     def show_warped(self, image: np.ndarray, calib, rect=None) -> None:
         """Geometry correction straight into the window: the warp shader
