@@ -236,3 +236,100 @@ def test_camera_source_shares_the_helper():
         f0, f1 = src.read(), src.read()
         assert (f0.index, f1.index) == (0, 1) and f0.image.shape == (720, 1280, 3)
         assert src.fps == 30.0 and "MJPG" in src.describe()
+
+
+# --------------------------------------------------------------------------- projector size
+class _LateFullscreenWindow(FakeProjector):
+    """A window whose framebuffer changes size a moment after going full-screen (Wayland's
+    late switch, desktop scaling): ``final_size`` polls until it settles."""
+
+    def __init__(self, sizes):
+        super().__init__(sizes[0])
+        self._sizes = list(sizes)
+
+    def final_size(self):
+        while len(self._sizes) > 1:
+            self.size = self._sizes.pop(0)
+        self.size = self._sizes[0]
+        return self.size
+
+
+def test_window_sink_refuses_a_framebuffer_that_is_not_the_calibrations():
+    from rtdefocus.errors import DeviceError
+    from rtdefocus.stream.sinks import WindowSink
+
+    win = _LateFullscreenWindow([(800, 600), (1280, 800)])     # mapped at 800x600, then 1280x800
+    with pytest.raises(DeviceError, match=r"is 1280x800 but the calibration is for a 800x600 "
+                       r"projector.*800x600 at 100 % scaling.*calibrate again at 1280x800"):
+        WindowSink(win, screen=1, expect_size=(800, 600))
+    win = _LateFullscreenWindow([(1280, 800), (800, 600)])     # settles at the right size
+    sink = WindowSink(win, expect_size=(800, 600))
+    assert sink.window.size == (800, 600)
+
+
+# --------------------------------------------------------------------------- CLI
+@pytest.fixture()
+def fake_hardware(monkeypatch):
+    """`rtdefocus calibrate/check --camera 0` on the fake projector and camera."""
+    import functools
+
+    import rtdefocus.procam as procam_mod
+
+    made = {}
+
+    def make(**camera):
+        proj = FakeProjector(PROJ)
+        dev = FakeDevice(proj, delay=0.05, **camera)
+        made.update(projector=proj, device=dev)
+        monkeypatch.setattr(procam_mod, "HardwareProCam", functools.partial(
+            procam_mod.HardwareProCam, window=proj, capture_factory=dev))
+        return made
+    return make
+
+
+def test_cli_check_reports_mode_latency_clipping(fake_hardware, capsys):
+    from rtdefocus import cli
+
+    fake_hardware()
+    rc = cli.main(["check", "--camera", "0", "--screen", "1", "--camera-size", "1280x720",
+                   "--fourcc", "MJPG", "--lock"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    for text in ("1280x720 MJPG at 30 fps", "latency", "white clipping", "black level",
+                 "contrast", "camera controls (V4L2)", "NOT set: autofocus", "ready: rtdefocus calibrate"):
+        assert text in out, (text, out)
+
+
+def test_cli_check_fails_on_clipping(fake_hardware, capsys):
+    from rtdefocus import cli
+
+    fake_hardware()
+    rc = cli.main(["check", "--camera", "0", "--lock", "--exposure", "100"])   # far too long
+    out = capsys.readouterr().out
+    assert rc == 1 and "[FAIL] white clipping" in out and "lower the camera's exposure" in out
+
+
+def test_cli_calibrate_passes_the_camera_options(monkeypatch):
+    import rtdefocus.procam as procam_mod
+    from rtdefocus import cli
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake(**kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(procam_mod, "HardwareProCam", fake)
+    with pytest.raises(Stop):
+        cli.main(["calibrate", "--camera", "2", "--screen", "1", "-o", "x.npz", "--camera-size",
+                  "1920x1080", "--fourcc", "mjpg", "--fps", "30", "--settle", "0.4", "--flush", "2",
+                  "--average", "4", "--lock", "--exposure", "33.3"])
+    assert seen == {"camera": 2, "screen": 1, "camera_size": (1920, 1080), "fourcc": "MJPG",
+                    "fps": 30.0, "settle": 0.4, "flush": 2, "average": 4, "lock": True,
+                    "exposure": pytest.approx(0.0333)}
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["calibrate", "--camera", "0", "-o", "x.npz", "--fourcc", "MJPEG"])
+    assert exc.value.code == 2

@@ -88,6 +88,41 @@ def _key_name(key: int) -> str | None:
     return None
 
 
+def monitor_info() -> list[dict]:
+    """Every connected monitor: ``index``, ``name``, ``size`` and ``refresh`` of its current
+    video mode, ``position`` on the desktop, ``scale`` (the desktop's content scale: 1.0 means
+    no scaling) and ``modes``, the distinct ``(width, height, refresh)`` it offers, largest first.
+
+    Raises
+    ------
+    DeviceError
+        No display (glfw cannot start).
+    """
+    import glfw
+
+    _glfw_acquire()
+    try:
+        out = []
+        for i, mon in enumerate(glfw.get_monitors() or []):
+            mode = glfw.get_video_mode(mon)
+            name = glfw.get_monitor_name(mon)
+            name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
+            try:
+                scale = tuple(float(v) for v in glfw.get_monitor_content_scale(mon))
+            except Exception:  # noqa: BLE001 - older glfw builds
+                scale = (1.0, 1.0)
+            modes = sorted({(int(m.size.width), int(m.size.height), int(m.refresh_rate))
+                            for m in (glfw.get_video_modes(mon) or [])}, reverse=True)
+            out.append({"index": i, "name": name,
+                        "size": (int(mode.size.width), int(mode.size.height)),
+                        "refresh": int(mode.refresh_rate),
+                        "position": tuple(int(v) for v in glfw.get_monitor_pos(mon)),
+                        "scale": scale, "modes": modes})
+        return out
+    finally:
+        _glfw_release()
+
+
 def list_monitors() -> list[tuple[int, str, tuple[int, int]]]:
     """``[(index, name, (width, height)), ...]`` of the connected monitors (current video mode)."""
     import glfw
@@ -193,6 +228,7 @@ class ProjectorWindow:
         #: The monitor's refresh rate in Hz (60 when windowed or unknown): the projector's
         #: frame period for camera exposures.
         self.refresh_rate = 60.0
+        self.monitor_name: str | None = None
         _glfw_acquire()
         self._glfw_held = True
         saved = self._egl.save()  # creating a glfw window un-currents the caller's context
@@ -205,6 +241,8 @@ class ProjectorWindow:
                     raise InputError(f"screen {screen} is not connected; monitors: {listing or 'none'}. "
                                      "Pick the projector's index with --screen")
                 monitor = monitors[screen]
+                name = glfw.get_monitor_name(monitor)
+                self.monitor_name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
                 mode = glfw.get_video_mode(monitor)
                 w, h = int(mode.size.width), int(mode.size.height)
                 glfw.window_hint(glfw.RED_BITS, mode.bits.red)
@@ -230,6 +268,7 @@ class ProjectorWindow:
                 raise DeviceError("cannot open an OpenGL 3.3 window through EGL on this display; "
                                   "check `rtdefocus info` and the graphics driver (Mesa's EGL works)")
             glfw.set_key_callback(self._win, self._on_key)
+            glfw.set_framebuffer_size_callback(self._win, self._on_resize)
             if fullscreen:
                 glfw.set_input_mode(self._win, glfw.CURSOR, glfw.CURSOR_HIDDEN)
             glfw.make_context_current(self._win)
@@ -261,6 +300,37 @@ class ProjectorWindow:
             name = glfw.get_monitor_name(mon)
             name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
             yield i, name, (mode.size.width, mode.size.height)
+
+    # ------------------------------------------------------------------ size
+    def _on_resize(self, window, width, height) -> None:
+        size = (int(width), int(height))
+        if size != self.size and width > 0 and height > 0:
+            log.warning("projector window framebuffer changed from %dx%d to %dx%d", *self.size, *size)
+            self.size = size
+
+    def final_size(self, timeout: float = 2.0, stable: float = 0.3) -> tuple[int, int]:
+        """Poll the framebuffer size until it has not changed for ``stable`` seconds (at most
+        ``timeout``): Wayland compositors switch to full-screen a moment after the window maps,
+        and desktop scaling changes the framebuffer then. Returns (and sets) :attr:`size`."""
+        import glfw
+
+        if self._win is None:
+            return self.size
+        end = time.perf_counter() + timeout
+        last, since = None, time.perf_counter()
+        while True:
+            glfw.poll_events()
+            fb = glfw.get_framebuffer_size(self._win)
+            size = (int(fb[0]), int(fb[1]))
+            now = time.perf_counter()
+            if size != last:
+                last, since = size, now
+            if now - since >= stable or now >= end:
+                break
+            time.sleep(0.02)
+        if last[0] > 0 and last[1] > 0:
+            self._on_resize(self._win, *last)
+        return self.size
 
     # ------------------------------------------------------------------ keys
     def _on_key(self, window, key, scancode, action, mods) -> None:
