@@ -127,7 +127,7 @@ def cmd_info(args) -> int:
     except DeviceError as exc:
         print(f"   none: {exc}")
     ok, renderer = gl_available()
-    print("OpenGL (EGL offscreen):")
+    print("OpenGL (offscreen):")
     print(f"   {renderer}" if ok else f"   unavailable: {renderer}")
     _print_monitors()
     return 0

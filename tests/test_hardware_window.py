@@ -68,3 +68,73 @@ def test_cli_play_refuses_a_screen_of_another_size(display, tmp_path, capsys):
     assert rc == 1
     assert f"is {SCREEN[0]}x{SCREEN[1]} but the calibration is for a {PROJ[0]}x{PROJ[1]}" in err
     assert "--screen" in err and "calibrate again" in err
+
+
+# --------------------------------------------------------------------------- GL APIs
+NATIVE_SCRIPT = r"""
+import sys
+import numpy as np
+from rtdefocus.calib.file import Calibration
+from rtdefocus.gl import runtime
+from rtdefocus.gl.warp import warp_image
+from rtdefocus.gl.window import ProjectorWindow
+
+if sys.argv[2] == "no-egl":             # a platform without EGL: the default becomes native
+    runtime.egl_library = lambda: None
+calib = Calibration.load(sys.argv[1])
+img = np.random.default_rng(3).integers(0, 256, (90, 120, 3), dtype=np.uint8)
+gl = warp_image(calib, img, backend="gl")
+assert runtime.context_api() == "native", runtime.context_api()
+ref = warp_image(calib, img, backend="cv2")
+d = np.abs(gl.astype(int) - ref.astype(int))
+assert d.mean() < 1.0, d.mean()
+with ProjectorWindow(fullscreen=False, size=calib.projector_size, vsync=False) as win:
+    assert win.api == "native"
+    wp, hp = calib.projector_size
+    frame = np.random.default_rng(4).integers(0, 256, (hp, wp, 3), dtype=np.uint8)
+    t = win.show(frame)
+    assert isinstance(t, float)
+    assert np.array_equal(win.read(), frame)
+    win.show_warped(img, calib)
+    assert np.array_equal(win.read(), gl), "the warp in the window = the offscreen warp"
+again = warp_image(calib, img, backend="gl")  # the offscreen context still works after the window
+assert np.array_equal(again, gl)
+print("native ok", runtime.create_context().info["GL_RENDERER"])
+"""
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("mode", ["RTDEFOCUS_GL=native", "no-egl"], ids=["glx", "no-egl-platform"])
+def test_window_and_warp_on_glx(display, tmp_path, mode):
+    """The native path (GLX under Xvfb; WGL/CGL on Windows/macOS): offscreen warp = cv2
+    reference, the window shows frames pixel for pixel and renders the warp, the offscreen
+    context survives the window. Run in a fresh process: this one already made EGL current."""
+    import os
+    import subprocess
+    import sys
+
+    from test_stream import virtual_calibration
+
+    setup = virtual_calibration().save(tmp_path / "setup.npz")
+    env = dict(os.environ, DISPLAY=display)
+    env.pop("RTDEFOCUS_GL", None)
+    if mode.startswith("RTDEFOCUS_GL="):
+        env["RTDEFOCUS_GL"] = mode.split("=")[1]
+    proc = subprocess.run([sys.executable, "-c", NATIVE_SCRIPT, str(setup), mode], env=env,
+                          capture_output=True, text=True, timeout=100)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "native ok" in proc.stdout
+
+
+def test_egl_missing_is_a_clear_error(monkeypatch):
+    from rtdefocus.errors import DeviceError
+    from rtdefocus.gl import runtime
+
+    monkeypatch.setattr(runtime, "egl_library", lambda: None)
+    monkeypatch.delenv("RTDEFOCUS_GL", raising=False)
+    assert runtime.default_api() == "native"
+    with pytest.raises(DeviceError, match="EGL is not available on this platform.*RTDEFOCUS_GL=native"):
+        runtime.create_context(shared=False, api="egl")
+    monkeypatch.setenv("RTDEFOCUS_GL", "glx")
+    with pytest.raises(DeviceError, match="RTDEFOCUS_GL must be one of egl, native"):
+        runtime.default_api()

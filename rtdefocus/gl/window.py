@@ -4,13 +4,14 @@ One class serves the player (compensated frames) and :class:`rtdefocus.HardwareP
 (calibration patterns). Frames are uploaded as a texture and drawn by ``kernels/present.glsl``
 pixel for pixel when their size matches the window.
 
-Contexts. The Compensator's OpenGL work runs in the process's EGL offscreen context
-(:func:`rtdefocus.gl.runtime.create_context`) on the same thread as this window. A thread has
-one current context, and on X11 a GLX window context cannot be made current once an EGL one has
-been (the X server answers BadAccess), so the window's context is an EGL one too
-(``GLFW_CONTEXT_CREATION_API = EGL``), and every window operation saves the thread's current
-EGL context, makes the window's current, and restores the saved one afterwards: code that
-expects its offscreen context to stay current keeps working.
+Contexts. The Compensator's OpenGL work runs in the process's offscreen context
+(:func:`rtdefocus.gl.runtime.create_context`) on the same thread as this window, and the window's
+context uses the same API (:func:`rtdefocus.gl.runtime.context_api`): EGL on Linux by default
+(on X11 a GLX context cannot be made current once an EGL one has been: BadAccess), the
+platform's native one (GLX, WGL on Windows, CGL on macOS) otherwise. moderngl runs on the
+window's context through glfw's loader. Every window operation saves the thread's current
+context, makes the window's current, and restores the saved one afterwards: code that expects
+its offscreen context to stay current keeps working.
 
 Keys are collected by glfw's callback into a queue and handed out by :meth:`ProjectorWindow.poll`
 as names (``"space"``, ``"left"``, ``"right"``, ``"escape"``, letters ``"a"``..``"z"``);
@@ -39,15 +40,18 @@ _glfw_users = 0  # glfw is initialised while at least one window is open
 
 
 class _EglCurrent:
-    """Save and restore the calling thread's current EGL context (ctypes on libEGL)."""
+    """Save and restore the calling thread's current EGL context (ctypes on libEGL).
+
+    Each context keeper (EGL, GLX, WGL, CGL) has ``save() -> token`` and ``restore(token)``."""
 
     def __init__(self) -> None:
         name = ctypes.util.find_library("EGL") or "libEGL.so.1"
         try:
             lib = ctypes.CDLL(name)
         except OSError as exc:
-            raise DeviceError(f"cannot load libEGL ({exc}); the projector window needs EGL. On "
-                              "Debian/Ubuntu: `sudo apt-get install libegl1 libegl-mesa0`") from exc
+            raise DeviceError(f"cannot load libEGL ({exc}); the EGL projector window needs it. On "
+                              "Debian/Ubuntu: `sudo apt-get install libegl1 libegl-mesa0`; "
+                              "elsewhere use the native OpenGL context (RTDEFOCUS_GL=native)") from exc
         for fn in ("eglGetCurrentDisplay", "eglGetCurrentContext", "eglGetCurrentSurface"):
             getattr(lib, fn).restype = ctypes.c_void_p
         lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
@@ -69,6 +73,84 @@ class _EglCurrent:
                 log.warning("could not restore the previous EGL context after a window operation")
         else:
             glfw.make_context_current(None)
+
+
+class _GlxCurrent:
+    """Save and restore the thread's current GLX context (ctypes on libGL)."""
+
+    def __init__(self) -> None:
+        name = ctypes.util.find_library("GL") or "libGL.so.1"
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError as exc:
+            raise DeviceError(f"cannot load libGL ({exc}) for the native OpenGL window; install "
+                              "the OpenGL driver (Debian/Ubuntu: `sudo apt-get install libgl1`) "
+                              "or use RTDEFOCUS_GL=egl") from exc
+        for fn in ("glXGetCurrentDisplay", "glXGetCurrentContext"):
+            getattr(lib, fn).restype = ctypes.c_void_p
+        lib.glXGetCurrentDrawable.restype = ctypes.c_ulong
+        lib.glXMakeCurrent.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_void_p]
+        self.lib = lib
+
+    def save(self):
+        lib = self.lib
+        return lib.glXGetCurrentDisplay(), lib.glXGetCurrentDrawable(), lib.glXGetCurrentContext()
+
+    def restore(self, saved) -> None:
+        import glfw
+
+        display, drawable, context = saved
+        if context:
+            if not self.lib.glXMakeCurrent(display, drawable, context):
+                log.warning("could not restore the previous GLX context after a window operation")
+        else:
+            glfw.make_context_current(None)
+
+
+class _WglCurrent:
+    """Save and restore the thread's current WGL context (Windows, opengl32)."""
+
+    def __init__(self) -> None:
+        lib = ctypes.WinDLL("opengl32")  # type: ignore[attr-defined]
+        lib.wglGetCurrentContext.restype = ctypes.c_void_p
+        lib.wglGetCurrentDC.restype = ctypes.c_void_p
+        lib.wglMakeCurrent.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        self.lib = lib
+
+    def save(self):
+        return self.lib.wglGetCurrentDC(), self.lib.wglGetCurrentContext()
+
+    def restore(self, saved) -> None:
+        self.lib.wglMakeCurrent(*saved)
+
+
+class _CglCurrent:
+    """Save and restore the thread's current CGL context (macOS, OpenGL.framework)."""
+
+    def __init__(self) -> None:
+        lib = ctypes.CDLL("/System/Library/Frameworks/OpenGL.framework/OpenGL")
+        lib.CGLGetCurrentContext.restype = ctypes.c_void_p
+        lib.CGLSetCurrentContext.argtypes = [ctypes.c_void_p]
+        self.lib = lib
+
+    def save(self):
+        return self.lib.CGLGetCurrentContext()
+
+    def restore(self, saved) -> None:
+        self.lib.CGLSetCurrentContext(saved)
+
+
+def _current_context_keeper(api: str):
+    """The save/restore helper for the window's context API."""
+    import sys
+
+    if api == "egl":
+        return _EglCurrent()
+    if sys.platform == "win32":
+        return _WglCurrent()
+    if sys.platform == "darwin":
+        return _CglCurrent()
+    return _GlxCurrent()
 
 
 def _key_name(key: int) -> str | None:
@@ -165,7 +247,7 @@ class _WindowLoader:
     """moderngl's context interface over a glfw window: GL functions through glfw, and
     ``with ctx:`` makes the window's context current and restores the previous one."""
 
-    def __init__(self, window, egl: _EglCurrent):
+    def __init__(self, window, egl):
         self.window, self.egl, self._saved = window, egl, []
 
     def load_opengl_function(self, name: str) -> int:
@@ -207,7 +289,7 @@ class ProjectorWindow:
     Raises
     ------
     DeviceError
-        No display, no EGL, or no OpenGL 3.3 context.
+        No display, no EGL (or native) OpenGL, or no OpenGL 3.3 context.
     InputError
         ``screen`` is not a connected monitor.
     """
@@ -217,7 +299,10 @@ class ProjectorWindow:
         import glfw
         import moderngl
 
-        self._egl = _EglCurrent()
+        from .runtime import context_api
+
+        self.api = context_api()
+        self._egl = _current_context_keeper(self.api)
         self._win = None
         self._keys: deque[str] = deque(maxlen=256)
         self._frame: np.ndarray | None = None
@@ -254,7 +339,8 @@ class ProjectorWindow:
                 glfw.window_hint(glfw.AUTO_ICONIFY, glfw.FALSE)
             else:
                 w, h = size or (800, 600)
-            glfw.window_hint(glfw.CONTEXT_CREATION_API, glfw.EGL_CONTEXT_API)
+            glfw.window_hint(glfw.CONTEXT_CREATION_API, glfw.EGL_CONTEXT_API if self.api == "egl"
+                             else glfw.NATIVE_CONTEXT_API)
             glfw.window_hint(glfw.CLIENT_API, glfw.OPENGL_API)
             glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
             glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
@@ -265,8 +351,10 @@ class ProjectorWindow:
             self._win = glfw.create_window(int(w), int(h), title, monitor, None)
             glfw.default_window_hints()
             if not self._win:
-                raise DeviceError("cannot open an OpenGL 3.3 window through EGL on this display; "
-                                  "check `rtdefocus info` and the graphics driver (Mesa's EGL works)")
+                other = "native" if self.api == "egl" else "egl"
+                raise DeviceError(f"cannot open an OpenGL 3.3 window through {self.api} on this "
+                                  "display; check `rtdefocus info` and the graphics driver, or try "
+                                  f"RTDEFOCUS_GL={other}")
             glfw.set_key_callback(self._win, self._on_key)
             glfw.set_framebuffer_size_callback(self._win, self._on_resize)
             if fullscreen:
