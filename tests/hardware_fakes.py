@@ -81,12 +81,15 @@ class FakeCapture:
 
     def __init__(self, projector: FakeProjector, *, backend="V4L2", fourcc="YUYV", size=(320, 240),
                  delay=0.5, queue=4, rect=(0.15, 0.1, 0.7, 0.8), refuse=(cv2.CAP_PROP_AUTOFOCUS,),
-                 ignore=(cv2.CAP_PROP_SHARPNESS,), noise=1.0, fail_reads=0, seed=0):
+                 ignore=(cv2.CAP_PROP_SHARPNESS,), noise=1.0, fail_reads=0, seed=0, world=None):
         self.projector, self.backend = projector, backend
         self.delay, self.queue, self.rect = delay, queue, rect
         self.refuse, self.ignore = set(refuse), set(ignore)
         self.noise, self.fail_reads = noise, fail_reads
         self.frozen_at: float | None = None   # a stuck stream repeats what it saw then
+        # world(pattern) -> RGB camera frame at the nominal exposure (e.g. the simulator's
+        # capture); rendered once per pattern shown.
+        self.world, self._world_cache = world, (None, None)
         self.fourcc, self.size = fourcc, tuple(size)
         self.fps = MODES[fourcc][self.size]
         self.rng = np.random.default_rng(seed)
@@ -224,6 +227,12 @@ class FakeCapture:
         """Gray picture of what the projector showed at ``t`` (cheap: a reader at 30 fps must
         keep up, as with a real camera)."""
         pattern = self.projector.shown_at(t if self.frozen_at is None else min(t, self.frozen_at))
+        if self.world is not None:
+            if self._world_cache[0] is not pattern:
+                self._world_cache = (pattern, self.world(pattern).astype(np.float32))
+            scale = self.gain(t) / (1 / 60 / 0.02)        # 1 at one 60 Hz frame period
+            rgb = np.clip(self._world_cache[1] * scale, 0, 255).astype(np.uint8)
+            return rgb[:, :, ::-1].copy()
         w, h = self.size
         x, y, rw, rh = self.rect
         x0, y0, x1, y1 = int(x * w), int(y * h), int((x + rw) * w), int((y + rh) * h)

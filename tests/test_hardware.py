@@ -277,9 +277,9 @@ def fake_hardware(monkeypatch):
 
     made = {}
 
-    def make(**camera):
-        proj = FakeProjector(PROJ)
-        dev = FakeDevice(proj, delay=0.05, **camera)
+    def make(projector_size=PROJ, **camera):
+        proj = FakeProjector(projector_size)
+        dev = FakeDevice(proj, **{"delay": 0.05, **camera})
         made.update(projector=proj, device=dev)
         monkeypatch.setattr(procam_mod, "HardwareProCam", functools.partial(
             procam_mod.HardwareProCam, window=proj, capture_factory=dev))
@@ -333,3 +333,31 @@ def test_cli_calibrate_passes_the_camera_options(monkeypatch):
     with pytest.raises(SystemExit) as exc:
         cli.main(["calibrate", "--camera", "0", "-o", "x.npz", "--fourcc", "MJPEG"])
     assert exc.value.code == 2
+
+
+@pytest.mark.timeout(300)
+def test_cli_calibrate_through_a_stale_camera_matches_the_direct_calibration(fake_hardware, tmp_path,
+                                                                              capsys):
+    """`rtdefocus calibrate --camera 0 --lock` on the virtual cubicle filmed by a camera with a
+    0.2 s delay and a 4-frame queue that ignores BUFFERSIZE: the same geometry as calibrating
+    the simulator directly, no capture taken again, no drift."""
+    import rtdefocus as rd
+    from rtdefocus import cli, sim
+    from rtdefocus.calib.file import Calibration
+
+    P, C = (200, 150), (320, 240)
+    world = sim.VirtualProCam("cubicle", projector_size=P, camera_size=C, seed=0)
+    direct = rd.calibrate(world, stages=("geometry",))
+    fake_hardware(projector_size=P, size=C, delay=0.2, queue=4, noise=0,
+                  world=lambda pattern: world.capture(pattern))
+    rc = cli.main(["calibrate", "--camera", "0", "--screen", "1", "--lock", "--average", "1",
+                   "--stages", "geometry", "-o", str(tmp_path / "setup.npz")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "0 capture(s) taken again" in out and "white level drift during calibration: +0.0%" in out
+    calib = Calibration.load(tmp_path / "setup.npz")
+    assert calib.n_planes == direct.n_planes == 2
+    pts = np.array([[[x, y]] for x in (10, 100, 190) for y in (10, 75, 140)], np.float64)
+    for H, H0 in zip(calib.H_cam_from_proj, direct.H_cam_from_proj, strict=True):
+        d = cv2.perspectiveTransform(pts, np.asarray(H)) - cv2.perspectiveTransform(pts, np.asarray(H0))
+        assert np.abs(d).max() < 0.5, f"camera positions differ by {np.abs(d).max():.2f} px"
