@@ -26,6 +26,7 @@ examples:
   rtdefocus info                                   list OpenCL devices and the GL renderer
   rtdefocus simulate --scene cubicle --pattern checker -o out.png
   rtdefocus calibrate --sim cubicle -o setup.npz   calibrate the built-in virtual cubicle
+  rtdefocus check --camera 0 --screen 1            pre-flight of a real camera and projector
   rtdefocus warp setup.npz photo.jpg -o warped.png
   rtdefocus demo -o demo_out                       the whole story on the virtual cubicle
   rtdefocus eval --quick                           ablations: methods x kernel layouts, convergence
@@ -126,9 +127,30 @@ def cmd_info(args) -> int:
     except DeviceError as exc:
         print(f"   none: {exc}")
     ok, renderer = gl_available()
-    print("OpenGL (EGL offscreen):")
+    print("OpenGL (offscreen):")
     print(f"   {renderer}" if ok else f"   unavailable: {renderer}")
+    _print_monitors()
     return 0
+
+
+def _print_monitors() -> None:
+    """The monitors glfw sees, with their modes (``--screen`` takes the index)."""
+    try:
+        from .gl.window import monitor_info
+
+        monitors = monitor_info()
+    except Exception as exc:  # noqa: BLE001 - no display, no glfw library: say so, don't fail
+        print(f"Monitors: none found ({exc})")
+        return
+    print("Monitors (--screen N):" if monitors else "Monitors: none connected")
+    for m in monitors:
+        scale = m["scale"]
+        note = "" if scale == (1.0, 1.0) else f", desktop scaling {scale[0]:g}x (set it to 100 %)"
+        print(f"   {m['index']}: {m['name']}  {m['size'][0]}x{m['size'][1]} @ {m['refresh']} Hz "
+              f"at {m['position'][0]},{m['position'][1]}{note}")
+        modes = ", ".join(f"{w}x{h}@{r}" for w, h, r in m["modes"][:12])
+        more = f" (+{len(m['modes']) - 12} more)" if len(m["modes"]) > 12 else ""
+        print(f"      modes: {modes}{more}")
 
 
 # --------------------------------------------------------------------------- simulate
@@ -166,6 +188,7 @@ examples:
   rtdefocus calibrate --sim cubicle -o setup.npz              the built-in virtual cubicle
   rtdefocus calibrate --sim pillar -o p.npz --stages geometry --noise 0.01 --seed 3
   rtdefocus calibrate --camera 0 --screen 1 -o setup.npz      a webcam and the second monitor
+  rtdefocus calibrate --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock -o s.npz
 writes setup.npz and, next to it (or in --diagnostics DIR), setup_geometry.png: the camera view
 with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles.
 """
@@ -201,6 +224,7 @@ def _add_calibrate(sub):
     src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
                      "go full-screen to --screen")
     p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    _add_camera_options(p)
     p.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
     default = ",".join(_available_stages())
     p.add_argument("--stages", type=_stages, default=None,
@@ -211,6 +235,60 @@ def _add_calibrate(sub):
     p.add_argument("--diagnostics", metavar="DIR",
                    help="folder for the diagnostics pictures (default: next to the output)")
     p.set_defaults(func=cmd_calibrate)
+
+
+def _fourcc(text: str) -> str:
+    if len(text) != 4:
+        raise argparse.ArgumentTypeError(f"fourcc must be four characters, e.g. MJPG or YUYV; got {text!r}")
+    return text.upper() if text.upper() in ("MJPG", "YUYV", "H264", "NV12") else text
+
+
+def _add_camera_options(p, capture: bool = True) -> None:
+    """The camera mode (and, for captures, the timing and control) options."""
+    p.add_argument("--camera-size", type=parse_size, metavar="WxH",
+                   help="camera resolution to ask for, e.g. 1920x1080 (default: the driver's)")
+    p.add_argument("--fourcc", type=_fourcc, metavar="CODE", help="camera pixel format, set "
+                   "before the size: MJPG (fast at 720p/1080p) or YUYV")
+    if not capture:
+        p.add_argument("--camera-fps", type=float, metavar="FPS", help="camera frame rate to ask for")
+        return
+    p.add_argument("--fps", type=float, metavar="FPS", help="camera frame rate to ask for")
+    p.add_argument("--settle", type=float, metavar="S", help="seconds from a pattern's swap to the "
+                   "first usable camera frame (default: measured latency + 2 frames)")
+    p.add_argument("--flush", type=int, default=1, metavar="N",
+                   help="camera frames discarded at least after each pattern (default 1)")
+    p.add_argument("--average", type=int, default=2, metavar="N",
+                   help="camera frames averaged per pattern (default 2)")
+    p.add_argument("--lock", action="store_true", help="lock exposure, white balance and focus, "
+                   "sharpening off (read back; what could not be set is reported)")
+    p.add_argument("--exposure", type=float, metavar="MS", help="exposure for --lock in "
+                   "milliseconds, rounded to whole projector frame periods (default: auto's choice)")
+
+
+def _hardware_procam(hw, args):
+    """A HardwareProCam from the command line's camera options."""
+    camera = int(args.camera) if str(args.camera).isdigit() else args.camera
+    return hw(camera=camera, screen=args.screen, camera_size=args.camera_size, fourcc=args.fourcc,
+              fps=args.fps, settle=args.settle, flush=args.flush, average=args.average,
+              lock=args.lock, exposure=args.exposure / 1e3 if args.exposure else None)
+
+
+def _report_hardware(procam, after: bool = False) -> None:
+    """Print what the hardware start-up found (and, after calibration, the white-level drift)."""
+    r = procam.report()
+    cam = procam.cam.describe() if hasattr(procam, "cam") else "camera"
+    lat = f", latency {r['latency_s'] * 1e3:.0f} ms" if r.get("latency_s") is not None else ""
+    print(f"{cam}{lat}, settle {r['settle_s'] * 1e3:.0f} ms, {r['recaptured']} capture(s) taken "
+          f"again, {r['restarts']} stream restart(s)")
+    if procam.controls is not None:
+        print(procam.controls.summary())
+    if after:
+        drift = procam.drift()
+        if drift is not None:
+            verdict = "" if abs(drift) < 0.03 else (
+                " — more than 3 %: the exposure or the projector's brightness changed during "
+                "calibration; use --lock, let the projector warm up 10 minutes, calibrate again")
+            print(f"white level drift during calibration: {drift:+.1%}{verdict}")
 
 
 def cmd_calibrate(args) -> int:
@@ -234,13 +312,14 @@ def cmd_calibrate(args) -> int:
         if hw is None:
             raise RtDefocusError("hardware capture needs HardwareProCam (not yet available in this "
                                  "version); use --sim PRESET for the built-in virtual set-up")
-        camera = int(args.camera) if str(args.camera).isdigit() else args.camera
-        procam = hw(camera=camera, screen=args.screen)
+        procam = _hardware_procam(hw, args)
         source = f"camera {args.camera!r}, projector on screen {args.screen}"
     t0 = time.perf_counter()
     try:
         with _Progress(args.quiet) as progress:
             calib = calibrate(procam, stages=stages, progress=progress)
+        if hasattr(procam, "drift"):
+            _report_hardware(procam, after=True)
     finally:
         if hasattr(procam, "close"):
             procam.close()
@@ -343,7 +422,7 @@ def _add_play(sub):
     p.add_argument("--stats", metavar="FILE", help="also write the run's statistics as JSON")
     p.add_argument("--cache", metavar="DIR", help="slide cache folder (default ~/.cache/rtdefocus)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
-    p.add_argument("--camera-size", type=parse_size, metavar="WxH", help="camera resolution to ask for")
+    _add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
     p.set_defaults(func=cmd_play)
 
@@ -356,9 +435,11 @@ def cmd_play(args) -> int:
     calib = Calibration.load(args.calibration)
     comp = Compensator(calib, backend=args.backend, method=args.method)
     bar = None
-    with open_source(args.source, camera_size=args.camera_size) as source:
+    with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
+                     camera_fps=args.camera_fps) as source:
         with open_sink(args.out, fps=args.fps or source.fps, screen=args.screen,
-                       fullscreen=args.windowed is None, window_size=args.windowed) as sink:
+                       fullscreen=args.windowed is None, window_size=args.windowed,
+                       expect_size=calib.projector_size) as sink:
             progress = None
             if not sink.realtime and not args.quiet:
                 from tqdm import tqdm
@@ -385,6 +466,40 @@ def cmd_play(args) -> int:
         print(f"wrote {stats.write_json(args.stats)}")
     return 0
 
+
+
+# --------------------------------------------------------------------------- check
+CHECK_EPILOG = """\
+examples:
+  rtdefocus check --camera 0 --screen 1                 the webcam and the second monitor
+  rtdefocus check --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock
+shows white and black on the projector and reports, in seconds: the camera's negotiated mode,
+the monitor, the projector-to-camera latency, the camera-to-projector pixel ratio, white
+clipping, the black level, the contrast and the camera controls. Exit code 1 on a FAIL line.
+"""
+
+
+def _add_check(sub):
+    p = sub.add_parser("check", help="pre-flight of a real set-up before calibrating: camera mode, "
+                       "monitor, latency, clipping, exposure", epilog=CHECK_EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--camera", required=True, metavar="INDEX", help="camera index or stream URL")
+    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    _add_camera_options(p)
+    p.set_defaults(func=cmd_check)
+
+
+def cmd_check(args) -> int:
+    from . import procam as procam_mod
+    from .hardware.preflight import FAIL, format_report, preflight
+
+    with _hardware_procam(procam_mod.HardwareProCam, args) as procam:
+        items = preflight(procam)
+    print(format_report(items))
+    failed = [i.name for i in items if i.verdict == FAIL]
+    print("fix the FAIL lines before calibrating" if failed else
+          f"ready: rtdefocus calibrate --camera {args.camera} --screen {args.screen} -o setup.npz")
+    return 1 if failed else 0
 
 
 # --------------------------------------------------------------------------- demo
@@ -500,7 +615,8 @@ def cmd_eval(args) -> int:
 
 
 # --------------------------------------------------------------------------- main
-COMMANDS = [_add_info, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_demo, _add_eval]
+COMMANDS = [_add_info, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_check, _add_demo,
+            _add_eval]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,13 +4,14 @@ One class serves the player (compensated frames) and :class:`rtdefocus.HardwareP
 (calibration patterns). Frames are uploaded as a texture and drawn by ``kernels/present.glsl``
 pixel for pixel when their size matches the window.
 
-Contexts. The Compensator's OpenGL work runs in the process's EGL offscreen context
-(:func:`rtdefocus.gl.runtime.create_context`) on the same thread as this window. A thread has
-one current context, and on X11 a GLX window context cannot be made current once an EGL one has
-been (the X server answers BadAccess), so the window's context is an EGL one too
-(``GLFW_CONTEXT_CREATION_API = EGL``), and every window operation saves the thread's current
-EGL context, makes the window's current, and restores the saved one afterwards: code that
-expects its offscreen context to stay current keeps working.
+Contexts. The Compensator's OpenGL work runs in the process's offscreen context
+(:func:`rtdefocus.gl.runtime.create_context`) on the same thread as this window, and the window's
+context uses the same API (:func:`rtdefocus.gl.runtime.context_api`): EGL on Linux by default
+(on X11 a GLX context cannot be made current once an EGL one has been: BadAccess), the
+platform's native one (GLX, WGL on Windows, CGL on macOS) otherwise. moderngl runs on the
+window's context through glfw's loader. Every window operation saves the thread's current
+context, makes the window's current, and restores the saved one afterwards: code that expects
+its offscreen context to stay current keeps working.
 
 Keys are collected by glfw's callback into a queue and handed out by :meth:`ProjectorWindow.poll`
 as names (``"space"``, ``"left"``, ``"right"``, ``"escape"``, letters ``"a"``..``"z"``);
@@ -20,8 +21,6 @@ same path without a keyboard.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import logging
 import time
 from collections import deque
@@ -30,45 +29,12 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..errors import DeviceError, InputError
+from .current import current_context_keeper
 from .runtime import load_program, read_rgb
 
 log = logging.getLogger(__name__)
 
-_EGL_DRAW, _EGL_READ = 0x3059, 0x305A
 _glfw_users = 0  # glfw is initialised while at least one window is open
-
-
-class _EglCurrent:
-    """Save and restore the calling thread's current EGL context (ctypes on libEGL)."""
-
-    def __init__(self) -> None:
-        name = ctypes.util.find_library("EGL") or "libEGL.so.1"
-        try:
-            lib = ctypes.CDLL(name)
-        except OSError as exc:
-            raise DeviceError(f"cannot load libEGL ({exc}); the projector window needs EGL. On "
-                              "Debian/Ubuntu: `sudo apt-get install libegl1 libegl-mesa0`") from exc
-        for fn in ("eglGetCurrentDisplay", "eglGetCurrentContext", "eglGetCurrentSurface"):
-            getattr(lib, fn).restype = ctypes.c_void_p
-        lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
-        lib.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
-        lib.eglMakeCurrent.restype = ctypes.c_uint
-        self.lib = lib
-
-    def save(self):
-        lib = self.lib
-        return (lib.eglGetCurrentDisplay(), lib.eglGetCurrentSurface(_EGL_DRAW),
-                lib.eglGetCurrentSurface(_EGL_READ), lib.eglGetCurrentContext())
-
-    def restore(self, saved) -> None:
-        import glfw
-
-        display, draw, read, context = saved
-        if context:
-            if not self.lib.eglMakeCurrent(display, draw, read, context):
-                log.warning("could not restore the previous EGL context after a window operation")
-        else:
-            glfw.make_context_current(None)
 
 
 def _key_name(key: int) -> str | None:
@@ -86,6 +52,41 @@ def _key_name(key: int) -> str | None:
     if glfw.KEY_0 <= key <= glfw.KEY_9:
         return chr(ord("0") + key - glfw.KEY_0)
     return None
+
+
+def monitor_info() -> list[dict]:
+    """Every connected monitor: ``index``, ``name``, ``size`` and ``refresh`` of its current
+    video mode, ``position`` on the desktop, ``scale`` (the desktop's content scale: 1.0 means
+    no scaling) and ``modes``, the distinct ``(width, height, refresh)`` it offers, largest first.
+
+    Raises
+    ------
+    DeviceError
+        No display (glfw cannot start).
+    """
+    import glfw
+
+    _glfw_acquire()
+    try:
+        out = []
+        for i, mon in enumerate(glfw.get_monitors() or []):
+            mode = glfw.get_video_mode(mon)
+            name = glfw.get_monitor_name(mon)
+            name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
+            try:
+                scale = tuple(float(v) for v in glfw.get_monitor_content_scale(mon))
+            except Exception:  # noqa: BLE001 - older glfw builds
+                scale = (1.0, 1.0)
+            modes = sorted({(int(m.size.width), int(m.size.height), int(m.refresh_rate))
+                            for m in (glfw.get_video_modes(mon) or [])}, reverse=True)
+            out.append({"index": i, "name": name,
+                        "size": (int(mode.size.width), int(mode.size.height)),
+                        "refresh": int(mode.refresh_rate),
+                        "position": tuple(int(v) for v in glfw.get_monitor_pos(mon)),
+                        "scale": scale, "modes": modes})
+        return out
+    finally:
+        _glfw_release()
 
 
 def list_monitors() -> list[tuple[int, str, tuple[int, int]]]:
@@ -130,7 +131,7 @@ class _WindowLoader:
     """moderngl's context interface over a glfw window: GL functions through glfw, and
     ``with ctx:`` makes the window's context current and restores the previous one."""
 
-    def __init__(self, window, egl: _EglCurrent):
+    def __init__(self, window, egl):
         self.window, self.egl, self._saved = window, egl, []
 
     def load_opengl_function(self, name: str) -> int:
@@ -172,7 +173,7 @@ class ProjectorWindow:
     Raises
     ------
     DeviceError
-        No display, no EGL, or no OpenGL 3.3 context.
+        No display, no EGL (or native) OpenGL, or no OpenGL 3.3 context.
     InputError
         ``screen`` is not a connected monitor.
     """
@@ -182,7 +183,10 @@ class ProjectorWindow:
         import glfw
         import moderngl
 
-        self._egl = _EglCurrent()
+        from .runtime import context_api
+
+        self.api = context_api()
+        self._egl = current_context_keeper(self.api)
         self._win = None
         self._keys: deque[str] = deque(maxlen=256)
         self._frame: np.ndarray | None = None
@@ -190,6 +194,10 @@ class ProjectorWindow:
         self._warp = None
         self._tex = None
         self._glfw_held = False
+        #: The monitor's refresh rate in Hz (60 when windowed or unknown): the projector's
+        #: frame period for camera exposures.
+        self.refresh_rate = 60.0
+        self.monitor_name: str | None = None
         _glfw_acquire()
         self._glfw_held = True
         saved = self._egl.save()  # creating a glfw window un-currents the caller's context
@@ -202,17 +210,21 @@ class ProjectorWindow:
                     raise InputError(f"screen {screen} is not connected; monitors: {listing or 'none'}. "
                                      "Pick the projector's index with --screen")
                 monitor = monitors[screen]
+                name = glfw.get_monitor_name(monitor)
+                self.monitor_name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
                 mode = glfw.get_video_mode(monitor)
                 w, h = int(mode.size.width), int(mode.size.height)
                 glfw.window_hint(glfw.RED_BITS, mode.bits.red)
                 glfw.window_hint(glfw.GREEN_BITS, mode.bits.green)
                 glfw.window_hint(glfw.BLUE_BITS, mode.bits.blue)
                 glfw.window_hint(glfw.REFRESH_RATE, mode.refresh_rate)
+                self.refresh_rate = float(mode.refresh_rate) or 60.0
                 # Do not minimise the projector's window when the operator clicks on the laptop.
                 glfw.window_hint(glfw.AUTO_ICONIFY, glfw.FALSE)
             else:
                 w, h = size or (800, 600)
-            glfw.window_hint(glfw.CONTEXT_CREATION_API, glfw.EGL_CONTEXT_API)
+            glfw.window_hint(glfw.CONTEXT_CREATION_API, glfw.EGL_CONTEXT_API if self.api == "egl"
+                             else glfw.NATIVE_CONTEXT_API)
             glfw.window_hint(glfw.CLIENT_API, glfw.OPENGL_API)
             glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
             glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
@@ -223,9 +235,12 @@ class ProjectorWindow:
             self._win = glfw.create_window(int(w), int(h), title, monitor, None)
             glfw.default_window_hints()
             if not self._win:
-                raise DeviceError("cannot open an OpenGL 3.3 window through EGL on this display; "
-                                  "check `rtdefocus info` and the graphics driver (Mesa's EGL works)")
+                other = "native" if self.api == "egl" else "egl"
+                raise DeviceError(f"cannot open an OpenGL 3.3 window through {self.api} on this "
+                                  "display; check `rtdefocus info` and the graphics driver, or try "
+                                  f"RTDEFOCUS_GL={other}")
             glfw.set_key_callback(self._win, self._on_key)
+            glfw.set_framebuffer_size_callback(self._win, self._on_resize)
             if fullscreen:
                 glfw.set_input_mode(self._win, glfw.CURSOR, glfw.CURSOR_HIDDEN)
             glfw.make_context_current(self._win)
@@ -257,6 +272,37 @@ class ProjectorWindow:
             name = glfw.get_monitor_name(mon)
             name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
             yield i, name, (mode.size.width, mode.size.height)
+
+    # ------------------------------------------------------------------ size
+    def _on_resize(self, window, width, height) -> None:
+        size = (int(width), int(height))
+        if size != self.size and width > 0 and height > 0:
+            log.warning("projector window framebuffer changed from %dx%d to %dx%d", *self.size, *size)
+            self.size = size
+
+    def final_size(self, timeout: float = 2.0, stable: float = 0.3) -> tuple[int, int]:
+        """Poll the framebuffer size until it has not changed for ``stable`` seconds (at most
+        ``timeout``): Wayland compositors switch to full-screen a moment after the window maps,
+        and desktop scaling changes the framebuffer then. Returns (and sets) :attr:`size`."""
+        import glfw
+
+        if self._win is None:
+            return self.size
+        end = time.perf_counter() + timeout
+        last, since = None, time.perf_counter()
+        while True:
+            glfw.poll_events()
+            fb = glfw.get_framebuffer_size(self._win)
+            size = (int(fb[0]), int(fb[1]))
+            now = time.perf_counter()
+            if size != last:
+                last, since = size, now
+            if now - since >= stable or now >= end:
+                break
+            time.sleep(0.02)
+        if last[0] > 0 and last[1] > 0:
+            self._on_resize(self._win, *last)
+        return self.size
 
     # ------------------------------------------------------------------ keys
     def _on_key(self, window, key, scancode, action, mods) -> None:
@@ -329,9 +375,13 @@ class ProjectorWindow:
         self._vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.viewport = (0, 0, W, H)
 
-    def show(self, frame: np.ndarray) -> None:
+    def show(self, frame: np.ndarray) -> float:
         """Present ``frame`` ((H, W, 3) uint8 RGB) now: letterboxed when its size differs from
-        the window's, pixel for pixel when it matches. Also processes window events."""
+        the window's, pixel for pixel when it matches. Also processes window events.
+
+        Blocks until the swap is done (``glFinish`` after the swap: with vsync, until the frame
+        is scanned out) and returns that ``time.perf_counter()``, the moment a camera's settle
+        time starts from."""
         import glfw
 
         frame = np.asarray(frame)
@@ -350,7 +400,10 @@ class ProjectorWindow:
             self._frame, self._warped = frame, None
             self._draw()
             glfw.swap_buffers(self._win)
+            self.ctx.finish()
+            shown = time.perf_counter()
         glfw.poll_events()
+        return shown
 
     def show_warped(self, image: np.ndarray, calib, rect=None) -> None:
         """Geometry correction straight into the window: the warp shader

@@ -175,13 +175,20 @@ class WindowSink(Sink):
     interactive = True
 
     def __init__(self, window=None, *, screen: int = 0, fullscreen: bool = True,
-                 size: tuple[int, int] | None = None, vsync: bool = True):
+                 size: tuple[int, int] | None = None, vsync: bool = True,
+                 expect_size: tuple[int, int] | None = None):
         from ..gl.window import ProjectorWindow
 
         self._own = window is None
         self.window = window if window is not None else ProjectorWindow(
             screen, fullscreen=fullscreen, size=size, vsync=vsync)
         self.count = 0
+        if expect_size is not None:
+            try:
+                check_window_size(self.window, expect_size, screen)
+            except BaseException:
+                self.close()
+                raise
 
     def write(self, frame: np.ndarray, index: int) -> None:
         self.window.show(_check_frame(frame))
@@ -209,13 +216,43 @@ class WindowSink(Sink):
         return f"window {w.size[0]}x{w.size[1]}" if w is not None else "window (closed)"
 
 
+def check_window_size(window, expect_size: tuple[int, int], screen: int = 0) -> tuple[int, int]:
+    """Refuse a projector window whose framebuffer is not ``expect_size`` (the calibration's
+    projector size), once its size has settled (:meth:`ProjectorWindow.final_size`): a scaled
+    frame loses the pixel-exact compensation. Returns the size.
+
+    Raises
+    ------
+    DeviceError
+        Naming both sizes and the fix.
+    """
+    from ..errors import DeviceError
+
+    size = tuple(window.final_size()) if hasattr(window, "final_size") else tuple(window.size)
+    want = tuple(int(v) for v in expect_size)
+    if size != want:
+        raise DeviceError(
+            f"the projector window on screen {screen} is {size[0]}x{size[1]} but the calibration "
+            f"is for a {want[0]}x{want[1]} projector: frames would be rescaled and the compensation "
+            f"would no longer line up with the projector's pixels. Set that output to "
+            f"{want[0]}x{want[1]} at 100 % scaling (display settings, or `xrandr --output NAME "
+            f"--mode {want[0]}x{want[1]} --scale 1x1`), check --screen (`rtdefocus info` lists "
+            f"the monitors), or calibrate again at {size[0]}x{size[1]}")
+    return size
+
+
 def open_sink(out: str | Path | None, *, fps: float | None = None, screen: int = 0,
-              fullscreen: bool = True, window_size: tuple[int, int] | None = None) -> Sink:
+              fullscreen: bool = True, window_size: tuple[int, int] | None = None,
+              expect_size: tuple[int, int] | None = None) -> Sink:
     """The sink ``--out`` names: none -> the projector window on ``screen``; ``null`` -> discard;
     a video extension (.mp4 .avi .mkv .mov) -> :class:`VideoFileSink`; an image extension -> one
-    image (a single-frame source); anything else -> a folder of numbered PNGs."""
+    image (a single-frame source); anything else -> a folder of numbered PNGs.
+
+    ``expect_size``: a full-screen window must end up this size (the calibration's projector
+    size), else :class:`DeviceError` (:func:`check_window_size`)."""
     if out is None:
-        return WindowSink(screen=screen, fullscreen=fullscreen, size=window_size)
+        return WindowSink(screen=screen, fullscreen=fullscreen, size=window_size,
+                          expect_size=expect_size if fullscreen else None)
     text = str(out)
     if text.lower() in ("null", "none", "-"):
         return NullSink()

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError, InputError
+from ..errors import InputError
 from ..imageio import IMAGE_EXTENSIONS, read_image, rgb_from_cv2
 
 log = logging.getLogger(__name__)
@@ -198,71 +198,52 @@ class VideoSource(Source):
         return f"video {self.path} ({self.n_frames or '?'} frames, {fps})"
 
 
-def open_capture(camera: int | str, size: tuple[int, int] | None = None, what: str = "camera"):
-    """Open ``cv2.VideoCapture`` on a camera index, URL or file; raise :class:`CaptureError` with
-    the fix when it cannot be opened. ``size = (width, height)`` is requested, not guaranteed."""
-    import cv2
-
-    if isinstance(camera, str) and camera.strip().isdigit():
-        camera = int(camera)          # "0" from a command line means the first camera, not a file
-    cap = cv2.VideoCapture(camera)
-    if not cap.isOpened():
-        hint = ("check that it is plugged in and that no other program (a video call, another "
-                "rtdefocus) is using it; `ls /dev/video*` lists the indices on Linux"
-                if isinstance(camera, int) else
-                "check the URL or path (it should play in a media player such as `ffplay URL`)")
-        cap.release()
-        raise CaptureError(f"cannot open {what} {camera!r}: {hint}")
-    if size is not None:
-        cap.set(cv2.CAP_PROP_FRAME_WIDTH, int(size[0]))
-        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, int(size[1]))
-    # Keep the driver's queue short so a frame read is a recent one (ignored where unsupported).
-    cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
-    return cap
-
-
 class CameraSource(Source):
     """A live camera (index) or network stream (URL): frames come at the camera's pace.
 
-    A failed read is retried ``retries`` times (cameras hiccup); after that
-    :class:`CaptureError` says what to check.
+    Opened and read through the helper :class:`rtdefocus.hardware.Camera` shares with
+    calibration: FOURCC before size, the negotiated mode logged, failed reads retried
+    ``retries`` times (the stream re-opened half way), then :class:`CaptureError`.
+
+    Parameters
+    ----------
+    camera : index, URL or video file.
+    size : (width, height) to ask for.
+    retries : extra attempts per failed read.
+    fourcc : pixel format to ask for, e.g. ``"MJPG"``.
+    fps : frame rate to ask for.
+    capture_factory : ``capture_factory(camera) -> cv2.VideoCapture``-like (tests).
     """
 
     kind = "camera"
     live = True
 
-    def __init__(self, camera: int | str = 0, size: tuple[int, int] | None = None, retries: int = 5):
-        import cv2
+    def __init__(self, camera: int | str = 0, size: tuple[int, int] | None = None, retries: int = 5,
+                 *, fourcc: str | None = None, fps: float | None = None, capture_factory=None):
+        from ..hardware.camera import CameraSettings, open_camera
 
         self.camera = camera
         self.retries = retries
-        self._cap = open_capture(camera, size)
-        fps = self._cap.get(cv2.CAP_PROP_FPS)
-        self.fps = float(fps) if fps and np.isfinite(fps) and 0 < fps < 1000 else None
+        self._cam = open_camera(camera, CameraSettings(size=size, fourcc=fourcc, fps=fps,
+                                                       retries=retries),
+                                capture_factory=capture_factory)
+        self.fps = self._cam.fps
         self._index = 0
 
     def read(self) -> Frame | None:
-        if self._cap is None:
+        if self._cam is None:
             return None
-        for attempt in range(self.retries + 1):
-            ok, bgr = self._cap.read()
-            if ok and bgr is not None:
-                frame = Frame(self._index, rgb_from_cv2(bgr), time.perf_counter())
-                self._index += 1
-                return frame
-            log.warning("camera %r: read failed (attempt %d of %d)", self.camera, attempt + 1,
-                        self.retries + 1)
-            time.sleep(0.02 * (attempt + 1))
-        raise CaptureError(f"camera {self.camera!r} stopped delivering frames ({self.retries + 1} "
-                           "failed reads in a row): check the cable or the network stream")
+        frame = Frame(self._index, self._cam.read(), time.perf_counter())
+        self._index += 1
+        return frame
 
     def close(self) -> None:
-        if self._cap is not None:
-            self._cap.release()
-            self._cap = None
+        if self._cam is not None:
+            self._cam.release()
+            self._cam = None
 
     def describe(self) -> str:
-        return f"camera {self.camera!r}"
+        return self._cam.describe() if self._cam is not None else f"camera {self.camera!r}"
 
 
 class ArraySource(Source):
@@ -321,7 +302,8 @@ def parse_camera(spec: str) -> int | str | None:
     return None
 
 
-def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None) -> Source:
+def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None,
+                fourcc: str | None = None, camera_fps: float | None = None) -> Source:
     """The source a command-line SOURCE names.
 
     ``camera:N`` or ``camera:URL`` or a stream URL (rtsp://, http://, ...) -> :class:`CameraSource`;
@@ -330,7 +312,7 @@ def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None)
     text = str(spec)
     camera = parse_camera(text)
     if camera is not None:
-        return CameraSource(camera, size=camera_size)
+        return CameraSource(camera, size=camera_size, fourcc=fourcc, fps=camera_fps)
     path = Path(text).expanduser()
     if path.is_dir():
         return SlidesSource(path)
