@@ -193,6 +193,9 @@ class ProjectorWindow:
         self._warped = None            # arguments of the last show_warped (for read())
         self._warp = None
         self._tex = None
+        self._prog = self._vao = None
+        self.ctx = None
+        self._rect_key = self._rect = None   # display rect of the last show_warped input
         self._glfw_held = False
         #: The monitor's refresh rate in Hz (60 when windowed or unknown): the projector's
         #: frame period for camera exposures.
@@ -431,7 +434,7 @@ class ProjectorWindow:
         image = np.ascontiguousarray(image)
         if rect is None:
             key = (id(calib), image.shape[1], image.shape[0])
-            if getattr(self, "_rect_key", None) != key:
+            if self._rect_key != key:
                 self._rect_key, self._rect = key, calib.display_rect((image.shape[1], image.shape[0]))
             rect = self._rect
         with self._current():
@@ -463,13 +466,11 @@ class ProjectorWindow:
         if self._win is not None:
             saved = self._egl.save()
             try:
-                if getattr(self, "ctx", None) is not None:
+                if self.ctx is not None:
                     with self._current():
-                        for obj in (self._tex, getattr(self, "_vao", None), getattr(self, "_prog", None)):
+                        for obj in (self._tex, self._vao, self._prog, self._warp):
                             if obj is not None:
                                 obj.release()
-                        if getattr(self, "_warp", None) is not None:
-                            self._warp.release()
                     self._tex = self._vao = self._prog = self._warp = None
                 glfw.destroy_window(self._win)
             finally:
