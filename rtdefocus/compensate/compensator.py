@@ -2,9 +2,17 @@
 
 Per frame: warp the input into projector space (GL pass, geometry only) → decode the uint8
 warp to linear light through the projector response (the target I, optionally mapped into a
-headroom) → solve ``min d(F P, I), 0 <= P <= 1`` (warm-started from the previous frame's P) →
-encode P back through the inverse response → uint8 for the projector. With the OpenCL backend
-the decode, solve and encode all run on the device in buffers allocated once.
+headroom) → solve ``min d(F P, I), 0 <= P <= 1`` → encode P back through the inverse response
+→ uint8 for the projector. With the OpenCL backend the decode, solve and encode all run on the
+device in buffers allocated once.
+
+In a video (frames passed in order, ``warm_start=True``) each solve starts from the previous
+frame's correction ``P − I`` moved along the picture's motion (:mod:`.motion`), with FISTA's
+momentum moved with it; pixels the motion does not explain start cold, a cut restarts from the
+target, and a frame identical to the last one simply continues its solve (a paused video or a
+slide converges to the full quality). The warm start is kept only when it is at least as close
+to the target as the cold start, and every solver step is monotone: a shown frame is never
+farther from its target than geometry only.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from ..gl.warp import warp_image
 from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
 from ..reference.metric import DEFAULT_WEIGHTS, Metric
 from .backends import make_solve_ops
+from .motion import MotionEstimator
 from .solvers import SOLVERS, SolveInfo, Solver
 from .wiener import wiener_prefilter
 
@@ -115,7 +124,11 @@ class Compensator:
         self._lut = np.asarray(calib.lut, dtype=np.float32)
         self._lut_inc = increasing_lut(self._lut)
         self._solver: Solver | None = None
-        self._warm = False
+        # The video state: the last frame the solver worked on (projector space, uint8) and its
+        # target on the host; None until the first frame and after reset().
+        self._prev_warped: np.ndarray | None = None
+        self._prev_target: np.ndarray | None = None
+        self._motion = MotionEstimator()
         self.last_info: dict = {}
         if method in ("ycbcr", "rgb"):
             metric = Metric.ycbcr(self.weights) if method == "ycbcr" else Metric.rgb()
@@ -138,8 +151,10 @@ class Compensator:
         return warp_image(self.calib, image, backend=self.warp_backend)
 
     def reset(self) -> None:
-        """Forget the previous frame (the next :meth:`compensate` starts from its target)."""
-        self._warm = False
+        """Forget the previous frame (the next :meth:`compensate` starts from its target): call
+        it on a seek or when frames stop coming in order."""
+        self._prev_warped = None
+        self._prev_target = None
 
     def compensate(self, image: np.ndarray, *, iterations: int | None = None,
                    warm_start: bool = True) -> np.ndarray:
@@ -149,7 +164,8 @@ class Compensator:
         ----------
         image : (H, W, 3) uint8 RGB, any size.
         iterations : overrides the constructor's budget for this frame.
-        warm_start : start from the previous frame's P (when there is one); else from the target.
+        warm_start : frames of a video, passed in order: start from the previous frame's
+            correction moved along the motion (see the module docstring); else from the target.
 
         Returns
         -------
@@ -198,7 +214,7 @@ class Compensator:
         if self._solver is not None:
             P, sinfo = self._solver.solve(target, P0, iterations=iters, tol=self.tol,
                                           headroom=self.headroom)
-            self._warm = True
+            self.reset()          # the solver no longer holds a video frame
         else:
             P = self._direct(apply_headroom(target, self.headroom))
             sinfo = SolveInfo("direct")
@@ -243,22 +259,55 @@ class Compensator:
         s = self._solver
         ops = s.ops
         t0 = time.perf_counter()
-        # Decode through the same strictly increasing LUT the encoder inverts, so that a frame
-        # the solve leaves alone comes back with its very codes.
-        ops.decode(warped, self._lut_inc, lo, scale, s.target)
-        warm = warm_start and self._warm
-        if not warm:
-            s.start_from_target()
+        start = self._start_solve(warped, lo, scale, warm_start)
         ops.finish()
         t1 = time.perf_counter()
         sinfo = s.run(iters, self.tol)
         t2 = time.perf_counter()
         out = ops.encode(s.P, self._lut_inc)
         sec.update(decode=t1 - t0, solve=t2 - t1, encode=time.perf_counter() - t2)
-        self._warm = True
-        info = self._info(sinfo, warm)
+        info = self._info(sinfo, start != "cold")
+        info["start"] = start
         info["seconds"] = sec
         return out, info
+
+    def _start_solve(self, warped: np.ndarray, lo: float, scale: float, warm_start: bool) -> str:
+        """Load the frame's target and choose the solver's start point.
+
+        Returns how the solve starts: ``"still"`` (the same frame again: the solve continues),
+        ``"motion"`` (the previous correction moved along the motion), ``"cold"`` (from the
+        target: first frame, ``warm_start=False``, or the warm start was not closer), ``"cut"``.
+        """
+        s = self._solver
+        ops = s.ops
+        prev = self._prev_warped if warm_start else None
+        if prev is not None and np.array_equal(prev, warped):
+            return "still"
+        motion = state = None
+        if prev is not None:
+            motion = self._motion.estimate(prev, warped)
+            if not motion.cut:
+                state = s.state()                  # before the new target replaces the old
+        # Decode through the same strictly increasing LUT the encoder inverts, so that a frame
+        # the solve leaves alone comes back with its very codes.
+        ops.decode(warped, self._lut_inc, lo, scale, s.target)
+        s.target_changed()
+        target = ops.download(s.target)
+        prev_target = self._prev_target
+        self._prev_warped = warped.copy()
+        self._prev_target = target
+        if state is None:
+            s.start_from_target()
+            return "cut" if motion is not None else "cold"
+        P, P_prev, G_prev, momentum = state
+        s.set_start(target + motion.carry(P - prev_target))
+        kept, _, _ = s.keep_better_than_cold()
+        if not kept:
+            return "cold"
+        if P_prev is not None:
+            s.carry_momentum(target + motion.carry(P_prev - prev_target), motion.carry(G_prev),
+                             motion.valid, momentum)
+        return "motion"
 
 
 def _resolve_backend(backend: str) -> str:

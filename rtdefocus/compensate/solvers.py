@@ -147,6 +147,14 @@ class Solver:
         self._fp, self._fp_alt = new(), new()
         self._G, self._G_prev = new(), new()         # F^T q at P and at P_prev (FISTA)
         self._s, self._fs = new(), new()
+        # What carries over between calls of run() (a video: one call per frame). ``_d`` is the
+        # distance at P for the current target with ``_q`` (and ``_fp``) up to date, or None;
+        # ``_grad_ready``: ``_G`` holds Fᵀ q at P; FISTA's momentum: ``_theta``, ``_beta`` and
+        # ``_P_prev``/``_G_prev``, valid while ``_momentum`` is set.
+        self._d: float | None = None
+        self._grad_ready = False
+        self._momentum = False
+        self._theta, self._beta = 1.0, 0.0
     # ------------------------------------------------------------------ public
     def solve(self, target: np.ndarray, P0: np.ndarray | None = None, *, iterations: int = 30,
               tol: float = 0.0, headroom=None) -> tuple[np.ndarray, SolveInfo]:
@@ -173,30 +181,125 @@ class Solver:
                              f"field; got {target.shape}")
         self.ops.upload(apply_headroom(target, headroom), self.target)
         if P0 is None:
-            self.ops.clamp_copy(self.target, self.P)
+            self.start_from_target()
         else:
-            P0 = np.asarray(P0, dtype=np.float32)
-            if P0.shape != self.shape:
-                raise InputError(f"P0 must be {self.shape}; got {P0.shape}")
-            self.ops.upload(np.clip(P0, 0.0, 1.0), self.P)
+            self.set_start(P0)
         info = self.run(iterations, tol)
         return self.ops.download(self.P), info
+
+    # ------------------------------------------------------------------ starts (a video)
+    def target_changed(self) -> None:
+        """Call after writing ``self.target`` directly (e.g. ``ops.decode``): what was known
+        about P (its distance, gradient, momentum) no longer holds."""
+        self._d = None
+        self._grad_ready = False
+        self.reset_momentum()
+
+    def reset_momentum(self) -> None:
+        self._momentum = False
+        self._theta, self._beta = 1.0, 0.0
 
     def start_from_target(self) -> None:
         """``P = clamp(target)`` on the backend (the cold start, P_0 = I_ip)."""
         self.ops.clamp_copy(self.target, self.P)
+        self._d = None
+        self._grad_ready = False
+        self.reset_momentum()
+
+    def set_start(self, P0: np.ndarray) -> None:
+        """Start the next :meth:`run` from ``clamp(P0)`` (host ``(3, H, W)``), without momentum."""
+        P0 = np.asarray(P0, dtype=np.float32)
+        if P0.shape != self.shape:
+            raise InputError(f"P0 must be {self.shape}; got {P0.shape}")
+        self.ops.upload(np.clip(P0, 0.0, 1.0), self.P)
+        self._d = None
+        self._grad_ready = False
+        self.reset_momentum()
+
+    def keep_better_than_cold(self) -> tuple[bool, float, float]:
+        """Keep the current start P only if it is at least as close as the cold start.
+
+        Evaluates ``d`` at P and at ``clamp(target)`` (one blur each) and leaves the better in
+        P, with its residual ready for :meth:`run`; choosing the cold start drops the momentum.
+        Since every solver step is monotone, the frame then ends no farther from the target
+        than geometry only (the cold start) — whatever the warm start was.
+
+        Returns
+        -------
+        (kept, d_start, d_cold) : whether the warm start was kept, the distance :meth:`run` now
+        starts from, and the cold start's.
+        """
+        ops = self.ops
+        if self._d is None:
+            ops.forward(self.P, self._fp)
+            self._d = ops.metric_residual(self._fp, self.target, self._q)
+        ops.clamp_copy(self.target, self._P_alt)
+        ops.forward(self._P_alt, self._fp_alt)
+        d_cold = ops.metric_residual(self._fp_alt, self.target, self._q_alt)
+        if d_cold < self._d:
+            self.P, self._P_alt = self._P_alt, self.P
+            self._fp, self._fp_alt = self._fp_alt, self._fp
+            self._q, self._q_alt = self._q_alt, self._q
+            self._d = d_cold
+            self._grad_ready = False
+            self.reset_momentum()
+            return False, d_cold, d_cold
+        return True, self._d, d_cold
+
+    def state(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, tuple]:
+        """Host copies of ``P`` and, while FISTA has momentum, ``P_prev`` and ``G_prev``, and
+        the momentum's ``(theta, beta)``."""
+        momentum = (self._theta, self._beta)
+        if self._momentum:
+            return (self.ops.download(self.P), self.ops.download(self._P_prev),
+                    self.ops.download(self._G_prev), momentum)
+        return self.ops.download(self.P), None, None, momentum
+
+    def carry_momentum(self, P_prev0: np.ndarray, G_prev0: np.ndarray, valid: np.ndarray,
+                       momentum: tuple[float, float]) -> None:
+        """Keep FISTA's momentum into a new frame (after :meth:`set_start` /
+        :meth:`keep_better_than_cold` kept a warm start).
+
+        ``P_prev0`` and ``G_prev0`` are the previous iterate and its gradient moved along the
+        motion; where ``valid`` is False the momentum is dropped pixel by pixel (``P_prev = P``,
+        ``G_prev = G``, so the extrapolation there is the plain step); ``momentum`` is the
+        ``(theta, beta)`` of :meth:`state`. Costs the adjoint the first iteration needs anyway,
+        and one read-back.
+        """
+        ops = self.ops
+        if self.solver != "fista":
+            return
+        if self._d is None:
+            ops.forward(self.P, self._fp)
+            self._d = ops.metric_residual(self._fp, self.target, self._q)
+        ops.adjoint(self._q, self._G)
+        self._grad_ready = True
+        P = ops.download(self.P)
+        G = ops.download(self._G)
+        ops.upload(np.where(valid[None], np.clip(P_prev0, 0.0, 1.0), P), self._P_prev)
+        ops.upload(np.where(valid[None], G_prev0, G), self._G_prev)
+        self._theta, self._beta = momentum
+        self._momentum = True
 
     def run(self, iterations: int, tol: float = 0.0) -> SolveInfo:
-        """Iterate from the current ``self.P`` towards ``self.target`` (both on the backend)."""
+        """Iterate from the current ``self.P`` towards ``self.target`` (both on the backend).
+
+        Continues where the previous call stopped when nothing changed in between (the same
+        target: a paused video, a slide): FISTA keeps its momentum, so k calls of n iterations
+        converge like one call of k·n.
+        """
         if iterations < 0:
             raise InputError(f"iterations must be >= 0; got {iterations}")
         t0 = time.perf_counter()
         info = SolveInfo(self.solver)
         ops = self.ops
-        ops.forward(self.P, self._fp)
-        info.distances.append(ops.metric_residual(self._fp, self.target, self._q))
+        if self._d is None:
+            ops.forward(self.P, self._fp)
+            self._d = ops.metric_residual(self._fp, self.target, self._q)
+        info.distances.append(self._d)
         if iterations > 0:
             (self._run_pg if self.solver == "pg" else self._run_fista)(iterations, tol, info)
+        self._d = info.distances[-1]
         ops.finish()
         info.seconds = time.perf_counter() - t0
         return info
@@ -205,6 +308,7 @@ class Solver:
     def _run_pg(self, iterations: int, tol: float, info: SolveInfo) -> None:
         ops = self.ops
         d = info.distances[-1]
+        self._grad_ready = False          # PG reuses _G as scratch
         for _ in range(iterations):
             g, s, fs, delta = self._G, self._s, self._fs, self._G
             ops.adjoint(self._q, g)                   # ∇d = 2 g
@@ -246,8 +350,8 @@ class Solver:
     def _run_fista(self, iterations: int, tol: float, info: SolveInfo) -> None:
         ops = self.ops
         d = info.distances[-1]
-        theta, beta = 1.0, 0.0
-        have_grad = False                 # G holds F^T q at the current P
+        theta, beta = (self._theta, self._beta) if self._momentum else (1.0, 0.0)
+        have_grad = self._grad_ready      # G holds F^T q at the current P
         for _ in range(iterations):
             if not have_grad:
                 ops.adjoint(self._q, self._G)
@@ -285,3 +389,6 @@ class Solver:
                 if rel < tol:
                     info.converged = True
                     break
+        # The momentum (and P_prev, G_prev) stay valid for the next call on the same target.
+        self._theta, self._beta, self._momentum = theta, beta, True
+        self._grad_ready = have_grad
