@@ -21,19 +21,25 @@ log = logging.getLogger(__name__)
 _EGL_DRAW, _EGL_READ = 0x3059, 0x305A
 
 
+def _load_library(name: str, fallback: str, fix: str) -> ctypes.CDLL:
+    """``lib<name>`` through ctypes, or a :class:`DeviceError` that says what needs it and the fix."""
+    path = ctypes.util.find_library(name) or fallback
+    try:
+        return ctypes.CDLL(path)
+    except OSError as exc:
+        raise DeviceError(f"cannot load lib{name} ({exc}); {fix}") from exc
+
+
 class _EglCurrent:
     """Save and restore the calling thread's current EGL context (ctypes on libEGL).
 
     Each context keeper (EGL, GLX, WGL, CGL) has ``save() -> token`` and ``restore(token)``."""
 
     def __init__(self) -> None:
-        name = ctypes.util.find_library("EGL") or "libEGL.so.1"
-        try:
-            lib = ctypes.CDLL(name)
-        except OSError as exc:
-            raise DeviceError(f"cannot load libEGL ({exc}); the EGL projector window needs it. On "
-                              "Debian/Ubuntu: `sudo apt-get install libegl1 libegl-mesa0`; "
-                              "elsewhere use the native OpenGL context (RTDEFOCUS_GL=native)") from exc
+        lib = _load_library("EGL", "libEGL.so.1",
+                            "the EGL projector window needs it. On Debian/Ubuntu: `sudo apt-get "
+                            "install libegl1 libegl-mesa0`; elsewhere use the native OpenGL "
+                            "context (RTDEFOCUS_GL=native)")
         for fn in ("eglGetCurrentDisplay", "eglGetCurrentContext", "eglGetCurrentSurface"):
             getattr(lib, fn).restype = ctypes.c_void_p
         lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
@@ -61,13 +67,9 @@ class _GlxCurrent:
     """Save and restore the thread's current GLX context (ctypes on libGL)."""
 
     def __init__(self) -> None:
-        name = ctypes.util.find_library("GL") or "libGL.so.1"
-        try:
-            lib = ctypes.CDLL(name)
-        except OSError as exc:
-            raise DeviceError(f"cannot load libGL ({exc}) for the native OpenGL window; install "
-                              "the OpenGL driver (Debian/Ubuntu: `sudo apt-get install libgl1`) "
-                              "or use RTDEFOCUS_GL=egl") from exc
+        lib = _load_library("GL", "libGL.so.1",
+                            "the native OpenGL window needs it; install the OpenGL driver "
+                            "(Debian/Ubuntu: `sudo apt-get install libgl1`) or use RTDEFOCUS_GL=egl")
         for fn in ("glXGetCurrentDisplay", "glXGetCurrentContext"):
             getattr(lib, fn).restype = ctypes.c_void_p
         lib.glXGetCurrentDrawable.restype = ctypes.c_ulong

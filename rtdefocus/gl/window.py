@@ -91,19 +91,7 @@ def monitor_info() -> list[dict]:
 
 def list_monitors() -> list[tuple[int, str, tuple[int, int]]]:
     """``[(index, name, (width, height)), ...]`` of the connected monitors (current video mode)."""
-    import glfw
-
-    _glfw_acquire()
-    try:
-        out = []
-        for i, mon in enumerate(glfw.get_monitors() or []):
-            mode = glfw.get_video_mode(mon)
-            name = glfw.get_monitor_name(mon)
-            name = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
-            out.append((i, name, (int(mode.size.width), int(mode.size.height))))
-        return out
-    finally:
-        _glfw_release()
+    return [(m["index"], m["name"], m["size"]) for m in monitor_info()]
 
 
 def _glfw_acquire() -> None:
