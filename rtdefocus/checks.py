@@ -77,12 +77,11 @@ def check_choice(value, choices, what: str):
 
 def check_coords(x, y, what: str = "position") -> tuple[np.ndarray, np.ndarray]:
     """Finite real coordinates (scalars or arrays) as float64 arrays."""
-    try:
-        xa = np.asarray(x, dtype=np.float64)
-        ya = np.asarray(y, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    xa, ya = np.asarray(x), np.asarray(y)
+    if xa.dtype.kind not in "iuf" or ya.dtype.kind not in "iuf":
         raise InputTypeError(f"{what} (x, y) must be real numbers (projector pixels); got "
-                             f"x={_show(x)}, y={_show(y)}") from exc
+                             f"x={_show(x)}, y={_show(y)}")
+    xa, ya = xa.astype(np.float64), ya.astype(np.float64)
     if not (np.isfinite(xa).all() and np.isfinite(ya).all()):
         raise InputError(f"{what} (x, y) must be finite projector pixels; got x={_show(x)}, "
                          f"y={_show(y)} (NaN or infinite: check the computation that made it)")

@@ -8,7 +8,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
-from ..errors import InputError
+from ..checks import check_procam
+from ..errors import InputError, InputTypeError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
 from .file import Calibration
@@ -67,8 +68,16 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     ------
     InputError
         An unknown stage or option (before the first capture; the message lists the valid
-        options of each stage).
+        options of each stage); :class:`~rtdefocus.errors.InputTypeError` for a ``procam``
+        that is not a :class:`~rtdefocus.ProCam` (no sizes or no ``capture``).
     """
+    check_procam(procam)
+    if isinstance(stages, str) or not all(isinstance(s, str) for s in stages):
+        raise InputTypeError(f"stages must be a tuple of stage names, e.g. ('geometry', 'psf'); "
+                             f"got {stages!r}")
+    if progress is not None and not callable(progress):
+        raise InputTypeError(f"progress must be a function progress(stage, done, total) or None; "
+                             f"got {type(progress).__name__}")
     unknown = [s for s in stages if s not in STAGES]
     if unknown or "geometry" not in stages:
         raise InputError(f"stages must include 'geometry' and be among {STAGES}; got {stages}")
