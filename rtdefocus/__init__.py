@@ -17,6 +17,7 @@ from .errors import (
     CaptureError,
     DeviceError,
     InputError,
+    InputTypeError,
     RtDefocusError,
 )
 from .procam import ProCam
@@ -47,5 +48,5 @@ def __getattr__(name: str):
 __all__ = [
     "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
-    "DeviceError", "InputError", "__version__",
+    "DeviceError", "InputError", "InputTypeError", "__version__",
 ]

@@ -39,3 +39,8 @@ class CaptureError(RtDefocusError, RuntimeError):
 
 class InputError(RtDefocusError, ValueError):
     """An image, pattern or argument has the wrong shape, type or value."""
+
+
+class InputTypeError(InputError, TypeError):
+    """An argument is of the wrong type (``None`` for a calibration, a string for a size);
+    both an :class:`InputError` and a ``TypeError``."""

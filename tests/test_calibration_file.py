@@ -199,3 +199,146 @@ def test_validate_rejects_bad_arrays_before_writing(tmp_path):
     with pytest.raises(CalibrationFileError, match="H_cam_from_proj has shape"):
         calib.save(tmp_path / "x.npz")
     assert not any(tmp_path.iterdir())
+
+
+# --------------------------------------------------------------------------- integrity
+DAMAGE = "damaged or was edited"
+
+
+def _load_raw(path):
+    with np.load(path, allow_pickle=False) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def _flip_byte(arr: np.ndarray, rng) -> np.ndarray:
+    raw = bytearray(np.ascontiguousarray(arr).tobytes())
+    i = int(rng.integers(len(raw)))
+    raw[i] ^= int(rng.integers(1, 256))           # a non-zero mask: the byte always changes
+    return np.frombuffer(bytes(raw), dtype=arr.dtype).reshape(arr.shape)
+
+
+def _drop_row(arr: np.ndarray, rng) -> np.ndarray:
+    return np.delete(arr, int(rng.integers(arr.shape[0])), axis=0)
+
+
+@pytest.fixture(scope="module")
+def good_raw(tmp_path_factory):
+    """One good file (all sections, two planes) and its entries, built once for the module."""
+    path = _calibration().save(tmp_path_factory.mktemp("good") / "good.npz")
+    return path, _load_raw(path)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("damage", ["flip-byte", "drop-row"])
+@pytest.mark.parametrize("name", ARRAYS)
+def test_any_change_of_any_array_is_the_integrity_error(good_raw, tmp_path, name, damage, seed):
+    _, data = good_raw
+    rng = np.random.default_rng([seed, ARRAYS.index(name)])
+    data = dict(data)
+    data[name] = (_flip_byte if damage == "flip-byte" else _drop_row)(data[name], rng)
+    path = tmp_path / "edited.npz"
+    np.savez(path, **data)
+    with pytest.raises(CalibrationFileError, match=DAMAGE) as info:
+        Calibration.load(path)
+    assert "edited.npz" in str(info.value) and "verify=False" in str(info.value)
+
+
+def test_the_reported_case_a_polygon_that_lost_a_vertex(good_raw, tmp_path):
+    """The issue's example: shapes stay legal ((m, 2) with any m), the display moves."""
+    _, data = good_raw
+    data = dict(data, lit_polygon_cam=data["lit_polygon_cam"][:-1])
+    np.savez(tmp_path / "poly.npz", **data)
+    with pytest.raises(CalibrationFileError, match=DAMAGE):
+        Calibration.load(tmp_path / "poly.npz")
+    # An expert who did it on purpose gets the file, with a warning.
+    back = Calibration.load(tmp_path / "poly.npz", verify=False)
+    assert back.lit_polygon_cam.shape == (5, 2)
+
+
+def test_an_edited_meta_is_the_integrity_error(good_raw, tmp_path):
+    path, _ = good_raw
+    edited = _rewrite(path, tmp_path / "meta.npz",
+                      meta_update={"geometry": {"n_planes": 2, "rms_px": [0.01, 0.01]}})
+    with pytest.raises(CalibrationFileError, match=DAMAGE):
+        Calibration.load(edited)
+
+
+def test_verify_false_loads_an_edited_file_with_a_warning(good_raw, tmp_path, caplog):
+    path, data = good_raw
+    H = data["H_cam_from_proj"].copy()
+    H[0, 0, 2] += 5.0                                   # a deliberate 5 px shift of plane 0
+    edited = _rewrite(path, tmp_path / "shifted.npz", H_cam_from_proj=H)
+    with caplog.at_level("WARNING", logger="rtdefocus.calib.file"):
+        back = Calibration.load(edited, verify=False)
+    np.testing.assert_array_equal(back.H_cam_from_proj, H)
+    assert any("digest does not match" in r.getMessage() for r in caplog.records)
+    # verify=False skips only the digest: a malformed file is still refused.
+    bad = _rewrite(path, tmp_path / "bad.npz", fold_proj=np.array([np.nan, 0.0, 1.0]))
+    with pytest.raises(CalibrationFileError, match="fold_proj contains NaN"):
+        Calibration.load(bad, verify=False)
+
+
+def test_a_file_without_a_digest_still_loads_with_a_note(good_raw, tmp_path, caplog):
+    path, data = good_raw
+    meta = json.loads(str(data["meta"]))
+    del meta["sha256"]
+    old = dict(data, meta=np.array(json.dumps(meta)))
+    np.savez(tmp_path / "old.npz", **old)
+    with caplog.at_level("INFO", logger="rtdefocus.calib.file"):
+        back = Calibration.load(tmp_path / "old.npz")
+    np.testing.assert_array_equal(back.psfs, data["psfs"])
+    assert any("no content digest" in r.getMessage() for r in caplog.records)
+    assert "sha256" not in back.meta
+
+
+def test_a_loaded_and_saved_again_file_verifies(good_raw, tmp_path):
+    path, _ = good_raw
+    again = Calibration.load(path).save(tmp_path / "again.npz")
+    assert Calibration.load(again).sections() == ["geometry", "radiometry", "psf"]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_flipped_byte_anywhere_in_the_file_is_refused_or_harmless(good_raw, tmp_path, seed):
+    """On disk the arrays are compressed: a flipped byte fails the zip CRC, the inflater or the
+    digest — always one CalibrationFileError — unless it hit zip metadata that changes no
+    content (then the digest proves the content is as saved)."""
+    path, data = good_raw
+    raw = bytearray(path.read_bytes())
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        b = raw.copy()
+        b[int(rng.integers(len(b)))] ^= int(rng.integers(1, 256))
+        (tmp_path / "flip.npz").write_bytes(bytes(b))
+        try:
+            back = Calibration.load(tmp_path / "flip.npz")
+        except CalibrationFileError:
+            continue
+        for name in ARRAYS:
+            np.testing.assert_array_equal(getattr(back, name), data[name], err_msg=name)
+
+
+# --------------------------------------------------------------------------- paths
+@pytest.mark.parametrize("saved_as,loaded_as", [("setup", "setup"), ("setup", "setup.npz"),
+                                                ("setup.npz", "setup"),
+                                                ("setup.npz", "setup.npz"),
+                                                ("setup.v2", "setup.v2")])
+def test_save_and_load_agree_on_both_spellings(tmp_path, saved_as, loaded_as):
+    calib = _calibration(seed=3)
+    written = calib.save(tmp_path / saved_as)
+    assert written.is_file() and written.suffix == ".npz"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [written.name]
+    back = Calibration.load(tmp_path / loaded_as)
+    np.testing.assert_array_equal(back.H_cam_from_proj, calib.H_cam_from_proj)
+    assert back.meta["loaded_from"]["path"] == str(written)
+
+
+def test_load_reads_a_file_named_without_npz_when_only_it_exists(tmp_path):
+    written = _calibration(seed=4).save(tmp_path / "x.npz")
+    renamed = written.rename(tmp_path / "calibration.dat")
+    assert Calibration.load(renamed).meta["loaded_from"]["path"] == str(renamed)
+
+
+def test_missing_file_names_both_spellings(tmp_path):
+    with pytest.raises(CalibrationFileError, match=r"'.*nothing' nor '.*nothing\.npz' does not "
+                                                   r"exist"):
+        Calibration.load(tmp_path / "nothing")

@@ -8,9 +8,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
-from ..errors import InputError
+from ..checks import check_procam
+from ..errors import CalibrationError, InputError, InputTypeError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
+from .diagnose import explain
 from .file import Calibration
 from .geometry import GeometryOptions, calibrate_geometry
 from .psf import PsfOptions, calibrate_psf
@@ -67,8 +69,21 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     ------
     InputError
         An unknown stage or option (before the first capture; the message lists the valid
-        options of each stage).
+        options of each stage); :class:`~rtdefocus.errors.InputTypeError` for a ``procam``
+        that is not a :class:`~rtdefocus.ProCam` (no sizes or no ``capture``).
+    CalibrationError
+        A stage could not learn what it needs from the captures. Before it is reported, two
+        more captures check the likely causes (:mod:`.diagnose`): the set-up moved or the
+        light changed since the start, or the camera sees only part of the projection; when
+        one is found the message starts with it and its fix (``error.cause``).
     """
+    check_procam(procam)
+    if isinstance(stages, str) or not all(isinstance(s, str) for s in stages):
+        raise InputTypeError(f"stages must be a tuple of stage names, e.g. ('geometry', 'psf'); "
+                             f"got {stages!r}")
+    if progress is not None and not callable(progress):
+        raise InputTypeError(f"progress must be a function progress(stage, done, total) or None; "
+                             f"got {type(progress).__name__}")
     unknown = [s for s in stages if s not in STAGES]
     if unknown or "geometry" not in stages:
         raise InputError(f"stages must include 'geometry' and be among {STAGES}; got {stages}")
@@ -86,10 +101,15 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     calib = None
     for name, st in chosen.items():
         t0 = time.perf_counter()
-        if name == "geometry":
-            calib = st.run(procam, capture=cap, **per_stage[name])
-        else:
-            st.run(procam, calib, capture=cap, **per_stage[name])
+        try:
+            if name == "geometry":
+                calib = st.run(procam, capture=cap, **per_stage[name])
+            else:
+                st.run(procam, calib, capture=cap, **per_stage[name])
+        except CalibrationError as exc:
+            # Dots or lines not found are symptoms; name the likely cause (moved set-up,
+            # changed light, partial view) when a quick check finds one.
+            raise explain(exc, cap, name) from exc
         timings[name] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}

@@ -32,6 +32,10 @@ class Capturer:
         self.progress = progress
         self.retries = retries
         self.counts: dict[str, int] = {}
+        #: The first all-white and all-black frames of the calibration (uint8), kept as the
+        #: reference :mod:`.diagnose` compares fresh frames with when a stage fails.
+        self.first_white: np.ndarray | None = None
+        self.first_black: np.ndarray | None = None
         self.stage = "capture"
         self._done = 0
         self._total = 0
@@ -66,6 +70,10 @@ class Capturer:
             raise CaptureError(f"capture failed {self.retries + 1} times during {self.stage} "
                                f"(pattern {self._done + 1}): {last}. Check the camera connection "
                                "and that nothing else is using it.") from last
+        if self.first_white is None and pattern.min() == 255:
+            self.first_white = frame.copy()
+        elif self.first_black is None and pattern.max() == 0:
+            self.first_black = frame.copy()
         self.counts[self.stage] = self.counts.get(self.stage, 0) + 1
         self._done += 1
         if self.progress:

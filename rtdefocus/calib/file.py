@@ -5,26 +5,40 @@ Sections (DESIGN.md §7, docs/internals.md): *geometry* (always), *radiometry* a
 array's presence, shape and dtype; any defect raises one :class:`CalibrationFileError` that
 says what is wrong and what to do. Saving is atomic (temporary file + rename), so a crash
 never leaves a half-written file where a good one was.
+
+Integrity: ``meta["sha256"]`` is a SHA-256 digest over every array's name, dtype, shape and
+bytes and over the rest of the meta (:func:`content_digest`). Shape checks cannot catch an
+edit that keeps the shapes (a polygon that lost a vertex, a flipped byte in a kernel), so
+``load`` recomputes the digest and refuses a file whose content changed since it was saved.
+Files written before the digest existed load with a logged note.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
+import logging
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
+from ..checks import check_coords, check_real, check_size
 from ..errors import CalibrationFileError, InputError
 from .planar import largest_inscribed_rect
 
+log = logging.getLogger(__name__)
+
 FORMAT_NAME = "rtdefocus-calibration"
 FORMAT_VERSION = 1
+#: meta key of the content digest (hex SHA-256, see :func:`content_digest`).
+DIGEST_KEY = "sha256"
 
 # name -> (dtype, shape template); "n" planes, "Hp"/"Wp" projector size, "N" PSFs, "k" kernel,
 # "m" polygon vertices. None entries in a template accept any size.
@@ -108,9 +122,11 @@ class Calibration:
         return self.response_lut if self.response_lut is not None else _identity_lut()
 
     def plane_of(self, x, y) -> np.ndarray:
-        """Plane index (0 or 1) of projector pixel(s) (x, y): 0 where ``fold_proj`` is negative."""
-        x = np.asarray(x, dtype=np.float64)
-        y = np.asarray(y, dtype=np.float64)
+        """Plane index (0 or 1) of projector pixel(s) (x, y): 0 where ``fold_proj`` is negative.
+
+        ``x``, ``y``: finite numbers or arrays that broadcast together (InputError otherwise).
+        """
+        x, y = check_coords(x, y, "plane_of position")
         if self.n_planes == 1:
             return np.zeros(np.broadcast(x, y).shape, dtype=np.int8)
         a, b, c = self.fold_proj
@@ -124,10 +140,13 @@ class Calibration:
 
     def display_rect(self, size: tuple[int, int], margin: float = 0.0) -> tuple[int, int, int, int]:
         """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears: the largest
-        upright rectangle of that aspect inside the lit area, shrunk by ``margin`` (a fraction)."""
-        w, h = size
-        if w <= 0 or h <= 0:
-            raise InputError(f"display size must be positive (width, height); got {size}")
+        upright rectangle of that aspect inside the lit area, shrunk by ``margin`` (a fraction
+        in [0, 0.5)). ``size`` is the input's (width, height) in whole pixels, both >= 1."""
+        w, h = check_size(size, "display size")
+        margin = check_real(margin, "display margin", lo=0.0)
+        if margin >= 0.5:
+            raise InputError(f"display margin is a fraction of the rectangle in [0, 0.5); got "
+                             f"{margin}")
         # The search scans every camera pixel (~0.1 s): a video asks this for every frame, so
         # remember the answer per aspect, margin and outline (the key changes if the outline does).
         key = (w / h, float(margin), self.lit_polygon_cam.tobytes(), tuple(self.camera_size))
@@ -140,12 +159,16 @@ class Calibration:
     def kernel_at(self, x: float, y: float) -> np.ndarray:
         """(k, k) float32 unit-sum gather kernel at projector pixel (x, y) (nearest pixel);
         entry ``[k//2 + v, k//2 + u]`` is k_x((u, v))."""
+        xa, ya = check_coords(x, y, "kernel_at position")
+        if xa.ndim or ya.ndim:
+            raise InputError(f"kernel_at takes one position (two numbers); got arrays of shape "
+                             f"{xa.shape} and {ya.shape} — call it once per position")
         if self.psfs is None:
             raise CalibrationFileError("this calibration has no PSF section (geometry only); "
                                        "run `rtdefocus calibrate` with the kernel stage enabled")
         wp, hp = self.projector_size
-        xi = int(np.clip(round(float(x)), 0, wp - 1))
-        yi = int(np.clip(round(float(y)), 0, hp - 1))
+        xi = int(np.clip(round(float(xa)), 0, wp - 1))
+        yi = int(np.clip(round(float(ya)), 0, hp - 1))
         idx, wts = self.pix_idx[yi, xi], self.pix_wts[yi, xi]
         k = np.tensordot(wts.astype(np.float64), self.psfs[idx].astype(np.float64), axes=1)
         s = k.sum()
@@ -170,11 +193,17 @@ class Calibration:
         _check_arrays(self._arrays(), self.projector_size, "<in memory>")
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write atomically to ``path`` (a ``.npz``); returns the path written."""
+        """Write atomically to ``path``; returns the path written.
+
+        A name that does not end in ``.npz`` gets it appended (``setup`` -> ``setup.npz``, as
+        NumPy does); :meth:`load` applies the same rule, so either spelling finds the file.
+        The file records a SHA-256 content digest that :meth:`load` verifies.
+        """
         self.validate()
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        given = Path(path)
+        path = npz_path(given)
+        if path != given:
+            log.info("calibration saved as %s (a calibration file ends in .npz)", path)
         meta = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -185,8 +214,13 @@ class Calibration:
             "sections": self.sections(),
             **{k: v for k, v in self.meta.items() if k not in ("format", "format_version")},
         }
-        payload = {"meta": np.array(json.dumps(meta, default=json_default))}
-        payload.update(self._arrays())
+        # The digest covers the meta as it will read back (NumPy scalars became numbers).
+        meta = json.loads(json.dumps(meta, default=json_default))
+        meta.pop(DIGEST_KEY, None)
+        arrays = self._arrays()
+        meta[DIGEST_KEY] = content_digest(meta, arrays)
+        payload = {"meta": np.array(json.dumps(meta))}
+        payload.update(arrays)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
         try:
@@ -204,11 +238,32 @@ class Calibration:
         return path
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> Calibration:
-        """Read and check a calibration file; any defect raises one CalibrationFileError."""
-        path = Path(path)
+    def load(cls, path: str | os.PathLike, *, verify: bool = True) -> Calibration:
+        """Read and check a calibration file.
+
+        Parameters
+        ----------
+        path : str or PathLike
+            The file; ``setup`` finds ``setup.npz`` as :meth:`save` wrote it (the name as
+            given is read when only it exists).
+        verify : bool
+            Check the content digest (default). ``False`` is for experts who edited a file on
+            purpose: the digest is not enforced (a warning is logged when it does not match);
+            the shapes, dtypes and values are still checked.
+
+        Raises
+        ------
+        CalibrationFileError
+            Missing, truncated, foreign, of another format version, malformed, or damaged or
+            edited since it was saved (digest mismatch); one error naming the file and the fix.
+        """
+        given = Path(path)
+        path = npz_path(given)
+        if not path.is_file() and given.is_file():
+            path = given
         if not path.is_file():
-            raise CalibrationFileError(f"calibration file {str(path)!r} does not exist; create one "
+            tried = repr(str(given)) if path == given else f"{str(given)!r} nor {str(path)!r}"
+            raise CalibrationFileError(f"calibration file {tried} does not exist; create one "
                                        "with `rtdefocus calibrate ... -o FILE.npz`")
         # np.load treats anything that is not a zip or .npy as a pickle, so random bytes would
         # be reported as "pickled objects": check the zip signature first.
@@ -227,9 +282,12 @@ class Calibration:
                     "will not load (unsafe); recalibrate to get a clean file") from exc
             raise CalibrationFileError(f"{str(path)!r} is not a readable .npz ({exc}); "
                                        "recalibrate or restore a good copy") from exc
-        except (zipfile.BadZipFile, OSError, EOFError) as exc:
-            raise CalibrationFileError(f"{str(path)!r} is truncated or not an .npz archive ({exc}); "
-                                       "recalibrate or restore a good copy") from exc
+        except (zipfile.BadZipFile, zlib.error, OSError, EOFError, NotImplementedError,
+                RuntimeError, KeyError) as exc:
+            # A flipped bit fails the zip CRC, the inflater or the header (compression method).
+            raise CalibrationFileError(f"{str(path)!r} is damaged, truncated or not an .npz "
+                                       f"archive ({exc}); recalibrate or restore a good copy") \
+                from exc
         if "meta" not in data:
             raise CalibrationFileError(f"{str(path)!r} is an .npz but not an rtdefocus calibration "
                                        "(no 'meta' entry)")
@@ -251,17 +309,67 @@ class Calibration:
             csize = tuple(int(v) for v in meta["camera_size"])
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationFileError(f"{str(path)!r}: meta lacks projector/camera size") from exc
-        _check_arrays(data, psize, str(path))
+        _verify(data, meta, psize, str(path), verify)
         kwargs = {name: data.get(name) for names in SECTIONS.values() for name in names}
         for name in GEOMETRY_ARRAYS:
             kwargs[name] = kwargs[name].astype(np.float64)
         drop = {"format", "format_version", "rtdefocus_version", "created", "projector_size",
-                "camera_size", "sections"}
+                "camera_size", "sections", DIGEST_KEY}
         calib = cls(projector_size=psize, camera_size=csize,
                     meta={k: v for k, v in meta.items() if k not in drop}, **kwargs)
         calib.meta["loaded_from"] = {"path": str(path), "created": meta.get("created"),
                                      "rtdefocus_version": meta.get("rtdefocus_version")}
         return calib
+
+
+def npz_path(path: str | os.PathLike) -> Path:
+    """The file :meth:`Calibration.save` writes for ``path``: ``.npz`` appended unless the
+    name already ends in it (``setup`` -> ``setup.npz``, ``setup.v2`` -> ``setup.v2.npz``)."""
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+
+
+def content_digest(meta: dict, arrays: dict[str, np.ndarray]) -> str:
+    """Hex SHA-256 over the meta (without its digest, keys sorted) and every array's name,
+    dtype, shape and bytes, in name order: any change of a value, a shape or a type changes it."""
+    h = hashlib.sha256()
+    body = {k: v for k, v in meta.items() if k != DIGEST_KEY}
+    h.update(json.dumps(body, sort_keys=True, separators=(",", ":")).encode())
+    for name in sorted(arrays):
+        arr = np.ascontiguousarray(arrays[name])
+        h.update(f"\n{name}|{arr.dtype.str}|{arr.shape}|".encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def _verify(data: dict, meta: dict, projector_size, where: str, verify: bool) -> None:
+    """Check the arrays, then the content digest; a digest mismatch is reported as damage or
+    an edit (with the first structural defect found, if any), since it is the likelier story
+    than a file written wrong by rtdefocus itself."""
+    problem = None
+    try:
+        _check_arrays(data, projector_size, where)
+    except CalibrationFileError as exc:
+        problem = exc
+    stored = meta.get(DIGEST_KEY)
+    if stored is None:
+        log.info("%s has no content digest (written before rtdefocus recorded one): its integrity "
+                 "cannot be checked; save it again to add one", where)
+    elif content_digest(meta, data) != stored:
+        if verify:
+            detail = f"; first defect found: {str(problem).replace(where + ': ', '')}" \
+                if problem else ""
+            raise CalibrationFileError(
+                f"{where} is damaged or was edited since it was saved: its content does not match "
+                f"the SHA-256 digest recorded in it{detail}. Restore a good copy or recalibrate "
+                "(an expert who edited it on purpose can load it with "
+                "Calibration.load(path, verify=False))") from problem
+        log.warning("%s: content digest does not match (damaged or edited since it was saved); "
+                    "loading anyway because verify=False", where)
+    elif not verify:
+        log.warning("%s: loading with verify=False; the content digest matches", where)
+    if problem is not None:
+        raise problem
 
 
 def json_default(obj):

@@ -22,8 +22,10 @@ import time
 
 import numpy as np
 
+from ..calib.file import Calibration
+from ..checks import check_choice, check_int, check_real
 from ..cl import runtime as cl_runtime
-from ..errors import CalibrationFileError, DeviceError, InputError
+from ..errors import CalibrationFileError, DeviceError, InputError, InputTypeError
 from ..gl.warp import warp_image
 from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
 from ..reference.metric import DEFAULT_WEIGHTS, Metric
@@ -96,14 +98,9 @@ class Compensator:
                  weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS,
                  headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
                  wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None):
-        if method not in METHODS:
-            raise InputError(f"method must be one of {METHODS}; got {method!r}")
-        if solver not in SOLVERS:
-            raise InputError(f"solver must be one of {SOLVERS}; got {solver!r}")
-        if backend not in ("auto", "opencl", "numpy"):
-            raise InputError(f"backend must be 'auto', 'opencl' or 'numpy'; got {backend!r}")
-        if iterations is not None and iterations < 0:
-            raise InputError(f"iterations must be >= 0; got {iterations}")
+        _check_args(calib, method=method, solver=solver, backend=backend,
+                    iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
+                    wiener_nsr=wiener_nsr, blur_variant=blur_variant)
         if method != "none" and not calib.has_psf:
             raise CalibrationFileError(
                 f"method {method!r} needs the calibration's PSF section (the defocus kernels), "
@@ -171,6 +168,7 @@ class Compensator:
         -------
         (Hp, Wp, 3) uint8, for the projector.
         """
+        _check_budget(iterations)
         t0 = time.perf_counter()
         warped = self.warp(image)
         t1 = time.perf_counter()
@@ -183,6 +181,7 @@ class Compensator:
     def compensate_warped(self, warped: np.ndarray, *, iterations: int | None = None,
                           warm_start: bool = True) -> np.ndarray:
         """:meth:`compensate` for a frame that is already in projector space ((Hp, Wp, 3) uint8)."""
+        _check_budget(iterations)
         t0 = time.perf_counter()
         out, info = self._compensate_warped(warped, iterations, warm_start)
         info["seconds"]["total"] = time.perf_counter() - t0
@@ -204,11 +203,18 @@ class Compensator:
         P : (3, Hp, Wp) float32 in [0, 1]
         info : dict (as :attr:`last_info`)
         """
+        _check_budget(iterations)
         target = np.asarray(target_linear, dtype=np.float32)
         wp, hp = self.projector_size
         if target.shape != (3, hp, wp):
             raise InputError(f"target_linear must be planar (3, {hp}, {wp}) linear light; got "
                              f"{target.shape}")
+        if not np.isfinite(target).all():
+            raise InputError("target_linear contains NaN or infinite values; it must be linear "
+                             "light in [0, 1]")
+        if P0 is not None and np.shape(P0) != (3, hp, wp):
+            raise InputError(f"P0 must be planar (3, {hp}, {wp}) like the target; got "
+                             f"{np.shape(P0)}")
         iters = self.iterations if iterations is None else int(iterations)
         t0 = time.perf_counter()
         if self._solver is not None:
@@ -308,6 +314,34 @@ class Compensator:
             s.carry_momentum(target + motion.carry(P_prev - prev_target), motion.carry(G_prev),
                              motion.valid, momentum)
         return "motion"
+
+
+def _check_args(calib, *, method, solver, backend, iterations, tol, weights, warp_backend,
+                wiener_nsr, blur_variant) -> None:
+    """The constructor's argument checks (before anything is built)."""
+    if not isinstance(calib, Calibration):
+        raise InputTypeError(
+            f"Compensator needs an rtdefocus Calibration; got {type(calib).__name__}. Make one "
+            "with rd.calibrate(procam) or load one with rd.Calibration.load('setup.npz')")
+    check_choice(method, METHODS, "method")
+    check_choice(solver, SOLVERS, "solver")
+    check_choice(backend, ("auto", "opencl", "numpy"), "backend")
+    check_choice(warp_backend, ("auto", "gl", "cv2"), "warp_backend")
+    check_choice(blur_variant, (None, "cpu", "gpu"), "blur_variant")
+    if iterations is not None:
+        check_int(iterations, "iterations", lo=0)
+    check_real(tol, "tol", lo=0.0)
+    check_real(wiener_nsr, "wiener_nsr", lo=0.0, lo_open=True)
+    if isinstance(weights, (str, bytes)) or not hasattr(weights, "__len__") or len(weights) != 4:
+        raise InputTypeError(f"weights must be the four Eq. 4 weights (w1, w2, w3, w4); got "
+                             f"{weights!r}")
+    for i, w in enumerate(weights):
+        check_real(w, f"weights[{i}]", lo=0.0)
+
+
+def _check_budget(iterations) -> None:
+    if iterations is not None:
+        check_int(iterations, "iterations", lo=0)
 
 
 def _resolve_backend(backend: str) -> str:

@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from ..errors import DeviceError, InputError
+from ..errors import DeviceError, InputError, InputTypeError
 from ..reference.warp import (
     check_image,
     check_warp_inputs,
@@ -220,6 +220,12 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
         The projector frame.
     """
     global _warned_no_gl
+    missing = [a for a in ("projector_size", "H_cam_from_proj", "fold_proj", "display_rect")
+               if not hasattr(calib, a)]
+    if missing:
+        raise InputTypeError(f"warp_image needs an rtdefocus Calibration first; got "
+                             f"{type(calib).__name__} (no {', '.join(missing)}). Make one with "
+                             "rd.calibrate(procam) or rd.Calibration.load('setup.npz')")
     if backend not in ("auto", "gl", "cv2"):
         raise InputError(f"backend must be 'auto', 'gl' or 'cv2'; got {backend!r}")
     img = check_image(image)

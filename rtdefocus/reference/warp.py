@@ -31,7 +31,7 @@ import math
 import cv2
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 
 __all__ = ["check_image", "check_warp_inputs", "mip_levels_needed", "mip_pyramid", "warp_cv2",
            "warp_lod", "warp_maps"]
@@ -113,10 +113,28 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
 
 def check_image(image) -> np.ndarray:
     """Return ``image`` as an array after checking it is RGB uint8 (H, W, 3); else InputError."""
+    if image is None or isinstance(image, (str, bytes)):
+        raise InputTypeError(f"image must be an RGB uint8 array (H, W, 3); got {image!r} (read a "
+                             "file with rtdefocus.imageio or cv2.imread + cv2.cvtColor BGR2RGB)")
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.shape[0] < 1 \
             or img.shape[1] < 1:
-        raise InputError(f"image must be RGB uint8 of shape (H, W, 3); got {img.dtype} {img.shape}")
+        if img.size == 0:
+            fix = "nothing: the array is empty; check how the frame was read"
+        elif img.ndim == 2:
+            fix = "a gray image: np.dstack([img] * 3)"
+        elif img.ndim == 3 and img.shape[2] == 4:
+            fix = "RGBA: drop alpha with img[..., :3]"
+        elif img.ndim == 3 and img.shape[2] == 3 and img.dtype.kind == "f":
+            fix = "floats in [0, 1]: (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)"
+        elif img.ndim == 3 and img.shape[0] == 3 and img.shape[2] != 3:
+            fix = "planar (3, H, W): np.moveaxis(img, 0, -1)"
+        elif img.ndim == 3 and img.shape[2] == 3:
+            fix = "other integers: scale into 0..255 and .astype(np.uint8)"
+        else:
+            fix = "this array: check how the frame was read"
+        raise InputError(f"image must be RGB uint8 of shape (H, W, 3); got {img.dtype} "
+                         f"{img.shape}. Convert {fix}")
     return img
 
 
