@@ -76,12 +76,12 @@ def test_motion_recovers_a_pan_and_flags_the_new_edge(pictures):
     a, _ = pictures
     prev, cur = _crop(a, 100, 100), _crop(a, 106, 97)     # content moves 6 px left, 3 px down
     m = MotionEstimator().estimate(prev, cur)
-    assert not m.cut and m.map_x is not None
+    assert not m.cut and m.map_xy is not None
     h, w = cur.shape[:2]
     xs, ys = np.meshgrid(np.arange(w), np.arange(h))
     core = m.valid[20:-20, 20:-20]
-    dx = (m.map_x - xs)[20:-20, 20:-20][core]
-    dy = (m.map_y - ys)[20:-20, 20:-20][core]
+    dx = (m.map_xy[..., 0] - xs)[20:-20, 20:-20][core]
+    dy = (m.map_xy[..., 1] - ys)[20:-20, 20:-20][core]
     assert abs(np.median(dx) - 6) < 0.3 and abs(np.median(dy) + 3) < 0.3, (np.median(dx),
                                                                              np.median(dy))
     assert m.valid_fraction > 0.85, m.valid_fraction
@@ -93,7 +93,7 @@ def test_motion_of_a_still_and_of_a_cut(pictures):
     a, b = pictures
     est = MotionEstimator()
     same = est.estimate(_crop(a, 50, 50), _crop(a, 50, 50))
-    assert same.map_x is None and same.valid.all() and not same.cut
+    assert same.map_xy is None and same.valid.all() and not same.cut
     cut = est.estimate(_crop(a, 50, 50), _crop(b, 0, 0))
     assert cut.cut, cut.valid_fraction
 

@@ -27,9 +27,9 @@ class Motion:
 
     Attributes
     ----------
-    map_x, map_y : (H, W) float32 or None
-        Source coordinates in the previous frame (``cv2.remap`` maps); None when the picture
-        did not move (every pixel stays where it is).
+    map_xy : (H, W, 2) float32 or None
+        Source coordinates ``(x, y)`` in the previous frame (a ``cv2.remap`` map); None when
+        the picture did not move (every pixel stays where it is).
     valid : (H, W) bool
         Pixels whose content the motion explains: the carried correction is used there.
     valid_fraction : float
@@ -37,8 +37,7 @@ class Motion:
         Too little of the frame is explained by the previous one: a new scene, start cold.
     """
 
-    map_x: np.ndarray | None
-    map_y: np.ndarray | None
+    map_xy: np.ndarray | None
     valid: np.ndarray
     valid_fraction: float
     cut: bool
@@ -47,10 +46,10 @@ class Motion:
         """Move a planar ``(C, H, W)`` float32 field of the previous frame along the motion; 0
         where the motion is invalid (the cold start's correction)."""
         field = np.asarray(field, dtype=np.float32)
-        if self.map_x is None:
+        if self.map_xy is None:
             out = field.copy()
         else:
-            out = np.stack([cv2.remap(c, self.map_x, self.map_y, cv2.INTER_LINEAR,
+            out = np.stack([cv2.remap(c, self.map_xy, None, cv2.INTER_LINEAR,
                                       borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
                             for c in field])
         out *= self.valid[None]
@@ -62,9 +61,9 @@ class MotionEstimator:
 
     Parameters
     ----------
-    scale : int
-        The flow is computed on frames downscaled by this factor (speed; the correction it moves
-        is smooth at that scale) and upsampled.
+    flow_width : int
+        The flow is computed on frames downscaled by an integer factor to about this width
+        (speed: the correction it moves is smooth at that scale) and upsampled.
     error_threshold : float
         A pixel is valid when the previous frame moved by the flow matches the current one
         within this many grey levels (after a small blur, so that noise alone does not reject).
@@ -75,30 +74,32 @@ class MotionEstimator:
         that a paused live picture does not resample (and blur) the carried correction.
     """
 
-    def __init__(self, *, scale: int = 2, error_threshold: float = 12.0,
+    def __init__(self, *, flow_width: int = 256, error_threshold: float = 12.0,
                  cut_fraction: float = 0.3, still_px: float = 0.2):
-        if int(scale) < 1:
-            raise InputError(f"scale must be >= 1; got {scale}")
-        self.scale = int(scale)
+        if int(flow_width) < 16:
+            raise InputError(f"flow_width must be >= 16; got {flow_width}")
+        self.flow_width = int(flow_width)
         self.error_threshold = float(error_threshold)
         self.cut_fraction = float(cut_fraction)
         self.still_px = float(still_px)
         self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-        self._grid: tuple[np.ndarray, np.ndarray] | None = None
+        self._grids: dict[tuple[int, int], np.ndarray] = {}   # pixel grids by size
 
-    def _small_grey(self, frame: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _small_grey(frame: np.ndarray, scale: int) -> np.ndarray:
         grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
-        if self.scale == 1:
+        if scale == 1:
             return grey
         h, w = grey.shape
-        return cv2.resize(grey, (max(1, w // self.scale), max(1, h // self.scale)),
+        return cv2.resize(grey, (max(1, w // scale), max(1, h // scale)),
                           interpolation=cv2.INTER_AREA)
 
-    def _pixel_grid(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-        if self._grid is None or self._grid[0].shape != (h, w):
-            xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-            self._grid = (xs, ys)
-        return self._grid
+    def _pixel_grid(self, h: int, w: int) -> np.ndarray:
+        """(h, w, 2) float32 pixel coordinates (x, y)."""
+        if (h, w) not in self._grids:
+            self._grids[(h, w)] = np.stack(np.meshgrid(np.arange(w, dtype=np.float32),
+                                                       np.arange(h, dtype=np.float32)), axis=-1)
+        return self._grids[(h, w)]
 
     def estimate(self, previous: np.ndarray, current: np.ndarray) -> Motion:
         """The motion from ``current`` back to ``previous`` (both ``(H, W, 3)`` uint8)."""
@@ -106,24 +107,27 @@ class MotionEstimator:
             raise InputError(f"frames must share an (H, W, 3) shape; got {previous.shape} and "
                              f"{current.shape}")
         h, w = current.shape[:2]
-        grey_prev = cv2.cvtColor(previous, cv2.COLOR_RGB2GRAY)
-        grey_cur = cv2.cvtColor(current, cv2.COLOR_RGB2GRAY)
-        # current(x) ≈ previous(x + flow(x))
-        flow = self._dis.calc(self._small_grey(current), self._small_grey(previous), None)
-        magnitude = np.hypot(flow[..., 0], flow[..., 1]) * self.scale
-        if float(np.percentile(magnitude, 99)) < self.still_px:
-            map_x = map_y = None
-            moved = grey_prev
-            inside = np.ones((h, w), bool)
+        scale = max(1, w // self.flow_width)
+        small_prev, small_cur = self._small_grey(previous, scale), self._small_grey(current, scale)
+        sh, sw = small_cur.shape
+        # current(x) ≈ previous(x + flow(x)); the check of that, and so the validity, is made at
+        # the flow's own resolution (cheap) and the mask upsampled.
+        flow = self._dis.calc(small_cur, small_prev, None)
+        magnitude = np.hypot(flow[..., 0], flow[..., 1]) * scale
+        still = float(np.percentile(magnitude, 99)) < self.still_px
+        if still:
+            moved, inside = small_prev, np.ones((sh, sw), bool)
         else:
-            flow = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR) * self.scale
-            xs, ys = self._pixel_grid(h, w)
-            map_x, map_y = xs + flow[..., 0], ys + flow[..., 1]
-            moved = cv2.remap(grey_prev, map_x, map_y, cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REPLICATE)
-            inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
-        error = cv2.absdiff(moved, grey_cur).astype(np.float32)
-        error = cv2.GaussianBlur(error, (0, 0), 2.0)
-        valid = inside & (error < self.error_threshold)
+            m = self._pixel_grid(sh, sw) + flow
+            moved = cv2.remap(small_prev, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            inside = ((m >= 0) & (m <= (sw - 1, sh - 1))).all(axis=-1)
+        error = cv2.GaussianBlur(cv2.absdiff(moved, small_cur).astype(np.float32), (0, 0),
+                                 2.0 / scale)
+        valid_small = (inside & (error < self.error_threshold)).astype(np.uint8)
+        valid = cv2.resize(valid_small, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
         fraction = float(valid.mean())
-        return Motion(map_x, map_y, valid, fraction, cut=fraction < self.cut_fraction)
+        if still:
+            return Motion(None, valid, fraction, cut=fraction < self.cut_fraction)
+        flow = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
+        map_xy = cv2.scaleAdd(flow, float(scale), self._pixel_grid(h, w))
+        return Motion(map_xy, valid, fraction, cut=fraction < self.cut_fraction)
