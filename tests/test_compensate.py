@@ -7,6 +7,7 @@ import logging
 
 import numpy as np
 import pytest
+from helpers import blind_calibrate
 
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator, Metric
@@ -29,9 +30,7 @@ BAND = 16   # camera px either side of the fold: the "near-fold band"
 def calibration_source(procam):
     """The calibration the outcome is judged with: learnt through capture() only, as a user
     gets it (the oracle, built from the ground truth, is the yardstick in the test below)."""
-    import rtdefocus as rd
-
-    return rd.calibrate(procam)
+    return blind_calibrate(procam)
 
 
 @pytest.fixture(scope="module")
