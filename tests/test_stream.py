@@ -398,7 +398,9 @@ def test_interactive_show_follows_keys(tmp_path, comp):
     states = []
     sink = RecordingSink(realtime=True, keys=["right", "c", "g", "right", "s", "left", "left", "left", "q"])
     player = Player(comp, SlidesSource(tmp_path / "deck"), sink, iterations=3)
-    sink.on_write = lambda s: states.append((s.indices[-1], player.controls.mode))
+    overlay = []
+    sink.on_write = lambda s: (states.append((s.indices[-1], player.controls.mode)),
+                               overlay.append(player.controls.overlay))
     stats = player.run()
     assert player.controls.quit
     shown = dict()
@@ -413,6 +415,10 @@ def test_interactive_show_follows_keys(tmp_path, comp):
     # never beyond the first slide going back
     assert min(s[0] for s in states) == 0 and max(s[0] for s in states) == 2
     # the overlay draws text: the frame after 's' differs from the same slide without it
+    with_overlay = [f for (s, on, f) in zip(states, overlay, sink.frames, strict=True)
+                    if on and s == (2, "geometry")]
+    assert with_overlay, f"no frame of slide 2 (geometry) with the overlay on: {states} {overlay}"
+    assert max_abs(with_overlay[0], shown[(2, "geometry")]) > 0, "the overlay left the frame as is"
     assert stats.frames_out == len(sink.frames)
 
 
