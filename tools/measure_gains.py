@@ -9,9 +9,6 @@ Sections (``--sections``, comma-separated):
                 only over the display rect and in the 16-px band either side of the fold.
 ``eval``        ``rtdefocus eval --quick`` (as tests/test_eval.py runs it): gains per row.
 ``demo``        the demo at 400x300 (as tests/test_demo.py runs it): the chelsea row.
-``heldout``     a set-up the defaults were not tuned on: offcenter at 800x600, projector gamma
-                2.2, hexagonal chromatic aperture, textured walls, a new photograph and a
-                synthetic chart (as tests/test_heldout.py runs it).
 
 Example::
 
@@ -78,19 +75,7 @@ def section_demo() -> None:
               f"{r['edges_output']}")
 
 
-def section_heldout() -> None:
-    import test_heldout as th
-
-    setup = th.heldout_setup()
-    for name in th.IMAGES:
-        g = th.gains(setup, name)
-        print(f"heldout {name:10s} " + "  ".join(f"{k} {v:+.3f}" for k, v in g.items()), flush=True)
-    errs = th.kernel_error_summary(setup)
-    print("heldout kernel errors", {k: round(v, 3) for k, v in errs.items()})
-
-
-SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
-            "heldout": section_heldout}
+SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo}
 
 
 def main(argv=None) -> int:
