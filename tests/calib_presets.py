@@ -25,22 +25,25 @@ NEAR_FOLD = 12.0     # px: "near the fold" in the accuracy criteria
 @dataclass
 class Calibrated:
     procam: object
-    calib: object                      # rd.calibrate(procam), default layout
+    calib: object                      # rd.calibrate(Blind(procam)), default layout
     variants: dict = field(default_factory=dict)   # (layout, cross_fold) -> Calibration
     seconds: float = 0.0
 
 
 @functools.cache
 def calibrated(preset: str) -> Calibrated:
+    from helpers import Blind, blind_calibrate
+
     import rtdefocus as rd
     from rtdefocus.calib.capture import Capturer
     from rtdefocus.eval_layouts import calibrate_psf_layouts
 
     procam = rd.sim.VirtualProCam(preset, projector_gamma=GAMMA)
     t0 = time.perf_counter()
-    calib = rd.calibrate(procam)
+    calib = blind_calibrate(procam)
+    blind = Blind(procam)
     variants = calibrate_psf_layouts(
-        procam, copy.deepcopy(calib), capture=Capturer(procam),
+        blind, copy.deepcopy(calib), capture=Capturer(blind),
         layouts=[("paper", False), ("default", True)], averages=calib.meta["psf"]["averages"])
     variants[("default", False)] = calib
     return Calibrated(procam, calib, variants, time.perf_counter() - t0)

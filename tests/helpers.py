@@ -40,3 +40,29 @@ def skip_or_fail(reason: str):
         pytest.fail(f"{reason} (RTDEFOCUS_REQUIRE_DEVICES is set: the set-up should provide it)",
                     pytrace=False)
     pytest.skip(reason)
+
+
+class Blind:
+    """The ProCam protocol and nothing else: ``projector_size``, ``camera_size`` and
+    ``capture``, so that a calibration under test cannot read the simulator's ground truth
+    (``truth``, ``scene``, ...). An optional ``post(index, pattern, frame) -> frame`` plays a
+    faulty camera. Every test that runs ``rd.calibrate`` or a calibration stage passes its
+    set-up through this (the truth stays with the test, on the unwrapped simulator)."""
+
+    def __init__(self, inner, post=None):
+        self._inner, self._post, self._n = inner, post, 0
+        self.projector_size, self.camera_size = inner.projector_size, inner.camera_size
+
+    def capture(self, pattern):
+        frame = self._inner.capture(pattern)
+        if self._post is not None:
+            frame = self._post(self._n, pattern, frame)
+        self._n += 1
+        return frame
+
+
+def blind_calibrate(procam, **options):
+    """``rd.calibrate`` through :class:`Blind` (the one way the tests calibrate end to end)."""
+    import rtdefocus as rd
+
+    return rd.calibrate(Blind(procam), **options)

@@ -7,6 +7,7 @@ import logging
 
 import numpy as np
 import pytest
+from helpers import blind_calibrate
 
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator, Metric
@@ -29,9 +30,7 @@ BAND = 16   # camera px either side of the fold: the "near-fold band"
 def calibration_source(procam):
     """The calibration the outcome is judged with: learnt through capture() only, as a user
     gets it (the oracle, built from the ground truth, is the yardstick in the test below)."""
-    import rtdefocus as rd
-
-    return rd.calibrate(procam)
+    return blind_calibrate(procam)
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +79,20 @@ def camera_views(preset: str, name: str, image: np.ndarray) -> dict:
 
 PHOTOS = ["chelsea", "coffee", "astronaut", "rocket"]
 
+# Measured gains of ycbcr over geometry only (PSNR dB over the display, PSNR dB in the fold band,
+# SSIM over the display), from `.venv/bin/python tools/measure_gains.py --sections compensate`
+# (OpenCL on PoCL, 2026-11-29). The tests ask for MARGIN of each: a change that loses a third
+# of the gain fails. (pillar/rocket's fold band is mostly flat sky: little to sharpen there.)
+MEASURED = {
+    ("cubicle", "chelsea"): (3.74, 3.35, 0.0292), ("cubicle", "coffee"): (3.86, 3.26, 0.0302),
+    ("cubicle", "astronaut"): (4.11, 3.62, 0.0371), ("cubicle", "rocket"): (3.21, 3.80, 0.0185),
+    ("tilted", "chelsea"): (3.66, 3.42, 0.0283), ("tilted", "coffee"): (3.67, 2.95, 0.0310),
+    ("tilted", "astronaut"): (4.04, 3.45, 0.0375), ("tilted", "rocket"): (3.05, 3.42, 0.0191),
+    ("pillar", "chelsea"): (3.14, 3.14, 0.0175), ("pillar", "coffee"): (3.69, 2.76, 0.0279),
+    ("pillar", "astronaut"): (4.25, 4.40, 0.0221), ("pillar", "rocket"): (2.87, 0.95, 0.0179),
+}
+MARGIN = 0.7
+
 
 @pytest.mark.parametrize("preset", PRESETS)
 @pytest.mark.parametrize("name", PHOTOS)
@@ -90,10 +103,12 @@ def test_compensation_beats_geometry_only(preset, name, images):
         assert m.sum() > 500, f"{region} is nearly empty"
         p0, p1 = psnr(v["none"], v["sharp"], m), psnr(v["ycbcr"], v["sharp"], m)
         s0, s1 = ssim(v["none"], v["sharp"], m), ssim(v["ycbcr"], v["sharp"], m)
-        # A real gain, not noise: > 0.5 dB over the display, and better in the fold band too.
-        need = 0.5 if region == "mask" else 0.0
-        assert p1 > p0 + need, f"{preset}/{name} {region}: PSNR {p1:.2f} vs geometry {p0:.2f}"
-        assert s1 > s0, f"{preset}/{name} {region}: SSIM {s1:.4f} vs geometry {s0:.4f}"
+        # At least MARGIN of the measured gain, over the display and in the fold band.
+        need = MARGIN * MEASURED[preset, name][0 if region == "mask" else 1]
+        assert p1 > p0 + need, (f"{preset}/{name} {region}: PSNR {p1:.2f} vs geometry {p0:.2f} "
+                                f"(gain {p1 - p0:.2f} dB < {need:.2f} dB)")
+        need_s = MARGIN * MEASURED[preset, name][2] if region == "mask" else 0.0
+        assert s1 > s0 + need_s, f"{preset}/{name} {region}: SSIM {s1:.4f} vs geometry {s0:.4f}"
 
 
 @pytest.mark.parametrize("preset", PRESETS)
@@ -115,6 +130,36 @@ def test_calibrated_gain_is_most_of_the_oracle_gain(preset, images):
     assert g_cal >= 0.6 * g_or, (f"{preset}: calibrated gain {g_cal:.2f} dB < 60 % of the "
                                  f"oracle's {g_or:.2f} dB (per photo {np.round(gains_cal, 2)} vs "
                                  f"{np.round(gains_oracle, 2)})")
+
+
+def test_solver_reaches_most_of_the_independent_reference_gain(images):
+    """The production solve (default budget) on the true kernels gains at least 85 % of what an
+    independent reference (tests/reference_solver.py: SciPy projected gradient with exact line
+    search, 300 iterations, to convergence) gains, on a 200x150 cubicle whose blur radii (in
+    projector px) match the 400x300 set-up above. Measured with this test's own code (OpenCL on
+    PoCL, 2026-11-29): reference +4.89 dB, production +4.63 dB (ratio 0.95; 10 iterations
+    instead of 40 give +3.50 dB, ratio 0.72); the oracle test above then ties the calibrated
+    kernels to the production solve on the true ones."""
+    import dataclasses
+
+    from reference_solver import ReferenceSolve
+
+    scene = dataclasses.replace(sim.PRESETS["cubicle"], blur_range_px=(3.0, 12.0))
+    procam = sim.VirtualProCam(scene, projector_size=(200, 150), camera_size=(320, 240), seed=3)
+    oracle = oracle_calibration(procam)
+    image = images["chelsea"]
+    geometry = Compensator(oracle, method="none")
+    warped = geometry.warp(image)
+    mask = rect_mask(geometry.display_rect((image.shape[1], image.shape[0])), (240, 320))
+    sharp = procam.capture(warped, sharp=True)
+    p0 = psnr(procam.capture(warped), sharp, mask)
+    ref = ReferenceSolve(oracle.psfs, oracle.pix_idx, oracle.pix_wts)
+    frame, d = ref.compensate(procam.truth.projector_gamma, warped, iterations=300)
+    assert np.all(np.diff(d) <= 1e-9 * d[0]), "the reference's exact line search never rises"
+    g_ref = psnr(procam.capture(frame), sharp, mask) - p0
+    g_prod = psnr(procam.capture(Compensator(oracle).compensate(image)), sharp, mask) - p0
+    assert g_ref > 0.7 * 4.89, f"the reference itself gains only {g_ref:.2f} dB (measured 4.89)"
+    assert g_prod >= 0.85 * g_ref, f"production {g_prod:.2f} dB < 85 % of the reference {g_ref:.2f} dB"
 
 
 def luminance_distance(a: np.ndarray, b: np.ndarray, rect) -> float:

@@ -11,6 +11,14 @@ import pytest
 # Distances are float32 sums on the device: a "non-increasing" curve may wobble by rounding.
 D_SLACK = 1e-6
 
+# Measured gains over geometry only in this run (`.venv/bin/python tools/measure_gains.py
+# --sections eval`, OpenCL on PoCL, 2026-11-29): PSNR dB per row, and the means; the tests ask
+# for MARGIN of each.
+MEASURED = {"chelsea": 3.74, "text": 1.13}
+MEASURED_FOLD = 2.08            # ycbcr/default mean psnr_fold gain
+MEASURED_FOLD_OVER_CROSS = 1.62  # ycbcr/default minus ycbcr/cross_fold, psnr_fold
+MARGIN = 0.7
+
 
 @pytest.fixture(scope="module")
 def quick_eval(tmp_path_factory):
@@ -47,7 +55,8 @@ def test_eval_writes_tables_json_and_plot(quick_eval):
 def test_compensation_beats_geometry_only(quick_eval):
     _, result = quick_eval
     for r in result["presets"]["cubicle"]["rows"]:
-        assert r["psnr"]["ycbcr/default"] > r["psnr"]["none"] + 0.3, (r["name"], r["psnr"])
+        need = MARGIN * MEASURED[r["name"]]
+        assert r["psnr"]["ycbcr/default"] > r["psnr"]["none"] + need, (r["name"], need, r["psnr"])
         assert r["ssim"]["ycbcr/default"] > r["ssim"]["none"], (r["name"], r["ssim"])
 
 
@@ -57,7 +66,9 @@ def test_oracle_bounds_the_calibrated_kernels_and_blind_layout_loses_at_the_fold
     # The true kernels are the best F can be; a measured one may tie it, within noise.
     assert gains["ycbcr/oracle"]["psnr"] >= gains["ycbcr/default"]["psnr"] - 0.25, gains
     # The paper's point: kernels blended across the fold are wrong next to it.
-    assert gains["ycbcr/default"]["psnr_fold"] > gains["ycbcr/cross_fold"]["psnr_fold"] + 0.5, gains
+    assert gains["ycbcr/default"]["psnr_fold"] > MARGIN * MEASURED_FOLD, gains
+    assert gains["ycbcr/default"]["psnr_fold"] > \
+        gains["ycbcr/cross_fold"]["psnr_fold"] + MARGIN * MEASURED_FOLD_OVER_CROSS, gains
 
 
 @pytest.mark.parametrize("solver", ["pg", "fista"])

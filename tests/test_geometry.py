@@ -16,6 +16,7 @@ import checkerboard
 import cv2
 import numpy as np
 import pytest
+from helpers import Blind
 
 import rtdefocus as rd
 from rtdefocus import sim
@@ -28,22 +29,6 @@ from rtdefocus.errors import CalibrationError, InputError
 
 PRESETS = list(sim.PRESETS)
 SMALL = {"projector_size": (400, 300), "camera_size": (640, 480)}
-
-
-class Blind:
-    """A ProCam that forwards ``capture`` only (so calibration cannot read ``truth``), with an
-    optional ``post(index, pattern, frame) -> frame`` that plays a faulty camera."""
-
-    def __init__(self, inner, post=None):
-        self._inner, self._post, self._n = inner, post, 0
-        self.projector_size, self.camera_size = inner.projector_size, inner.camera_size
-
-    def capture(self, pattern):
-        frame = self._inner.capture(pattern)
-        if self._post is not None:
-            frame = self._post(self._n, pattern, frame)
-        self._n += 1
-        return frame
 
 
 _RUNS: dict = {}

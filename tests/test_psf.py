@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from calib_presets import NEAR_FOLD, PRESETS, calibrated, eval_points, fold_distance, kernel_errors
+from helpers import Blind
 
 from rtdefocus.calib.capture import Capturer
 from rtdefocus.calib.file import Calibration
@@ -176,7 +177,12 @@ def test_dense_layout_is_a_grid_per_plane():
     plan = plan_samples(cal, model, "dense", dense_spacing=50)
     grid = plan.points[plan.kinds == "grid"]
     assert len(grid) > 150
-    assert set(np.diff(np.unique(grid[:, 0]))) == {50} or np.ptp(np.diff(np.unique(grid[:, 0]))) <= 1
+    wp, hp = cal.projector_size
+    for axis, size in ((0, wp), (1, hp)):
+        # one lattice of step 50 px (the grid is centred in the frame, so not on integers)
+        ticks = np.unique(np.round(grid[:, axis], 6))
+        np.testing.assert_allclose(np.diff(ticks), 50.0, atol=1e-6, err_msg=f"axis {axis}")
+        assert ticks[0] <= 2.0 + 50 and ticks[-1] >= size - 3.0 - 50, (axis, ticks[[0, -1]])
     side = cal.plane_of(grid[:, 0], grid[:, 1])
     assert np.array_equal(side, plan.planes[plan.kinds == "grid"])
 
@@ -184,7 +190,8 @@ def test_dense_layout_is_a_grid_per_plane():
 def test_unknown_layout_raises():
     res = calibrated("cubicle")
     with pytest.raises(InputError, match="layout"):
-        calibrate_psf(res.procam, res.calib, capture=Capturer(res.procam), layout="sparse")
+        calibrate_psf(Blind(res.procam), res.calib, capture=Capturer(Blind(res.procam)),
+                      layout="sparse")
 
 
 # ----------------------------------------------------------------------------- convention

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from calib_presets import GAMMA, PRESETS, calibrated, truth_geometry
+from helpers import Blind
 
 from rtdefocus.calib.capture import Capturer
 from rtdefocus.calib.radiometry import (
@@ -90,9 +91,10 @@ def test_camera_gamma_option(camera_gamma_procam):
     """Only camera∘projector is observable: with the camera's exponent given, the projector's
     is recovered; assuming a linear camera instead gives a clearly wrong one (documented)."""
     procam = camera_gamma_procam
-    cap = Capturer(procam)      # shared: the second run reuses the black and white frames
-    known = calibrate_radiometry(procam, truth_geometry(procam), capture=cap, camera_gamma=1.8)
-    assumed = calibrate_radiometry(procam, truth_geometry(procam), capture=cap)
+    cap = Capturer(Blind(procam))      # shared: the second run reuses the black and white frames
+    known = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap,
+                                 camera_gamma=1.8)
+    assumed = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap)
     assert cap.counts["radiometry"] == 7
     g_known = np.mean(known.meta["radiometry"]["gamma"])
     g_assumed = np.mean(assumed.meta["radiometry"]["gamma"])
@@ -153,7 +155,7 @@ def test_camera_clipping_raises():
     import rtdefocus as rd
     procam = rd.sim.VirtualProCam("cubicle", exposure=3.0)
     with pytest.raises(CalibrationError, match="exposure"):
-        calibrate_radiometry(procam, truth_geometry(procam), capture=Capturer(procam))
+        calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=Capturer(Blind(procam)))
 
 
 def test_bad_options_raise():

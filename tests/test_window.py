@@ -151,14 +151,14 @@ def test_player_in_window_with_injected_keys(display, tmp_path):
     class ScriptedWindowSink(WindowSink):
         """Reads back what the window shows after each frame, then 'presses' the next key."""
 
-        def _after(self, index, path):
-            seen.append((index, player.controls.mode, path, self.window.read()))
+        def _after(self, index, path, sent=None):
+            seen.append((index, player.controls.mode, path, self.window.read(), sent))
             if script:
                 self.window.inject_key(script.pop(0))
 
         def write(self, frame, index):
             super().write(frame, index)
-            self._after(index, "texture")
+            self._after(index, "texture", np.array(frame, copy=True))
 
         def write_warped(self, image, index, calib):
             super().write_warped(image, index, calib)
@@ -168,10 +168,14 @@ def test_player_in_window_with_injected_keys(display, tmp_path):
         player = Player(comp, SlidesSource(tmp_path / "deck"), ScriptedWindowSink(win), iterations=2)
         stats = player.run()
     assert player.controls.quit and stats.frames_out == len(seen) >= 4
-    by_state = {(i, m): shown for i, m, _, shown in seen}
+    by_state = {(i, m): shown for i, m, _, shown, _ in seen}
+    # every frame sent to the window as a texture is what the window shows, pixel for pixel
+    for i, m, path, shown, sent in seen:
+        if path == "texture":
+            assert np.array_equal(shown, sent), f"slide {i} ({m}): the window shows another frame"
     assert np.array_equal(by_state[(1, "off")], fit_image(slides[1], PROJ))
     # 'g': the warp shader rendered straight into the window = the offscreen warp
-    assert [p for _, m, p, _ in seen if m == "geometry"] == ["direct"]
+    assert [p for _, m, p, _, _ in seen if m == "geometry"] == ["direct"]
     assert np.array_equal(by_state[(1, "geometry")], comp.warp(slides[1]))
     assert (0, "full") in by_state and (1, "full") in by_state
 
@@ -267,12 +271,13 @@ def test_cli_play_slides_in_window(display, tmp_path, monkeypatch, capsys):
 
     setup = virtual_calibration().save(tmp_path / "setup.npz")
     write_image(tmp_path / "deck" / "1.png", synthetic_frames(1, seed=4)[0])
-    shown = []
+    shown, sent = [], []
     real_show, real_poll = ProjectorWindow.show, ProjectorWindow.poll
 
     def show(self, frame):
         real_show(self, frame)
         shown.append(self.read())
+        sent.append(np.array(frame, copy=True))
 
     def poll(self):                      # the viewer presses q once a frame is up
         return real_poll(self) + (["q"] if shown else [])
@@ -283,4 +288,6 @@ def test_cli_play_slides_in_window(display, tmp_path, monkeypatch, capsys):
                    "--iterations", "2", "--no-cache"])
     assert rc == 0 and len(shown) >= 1
     assert shown[0].shape == (PROJ[1], PROJ[0], 3) and shown[0].max() > 0
+    assert all(np.array_equal(a, b) for a, b in zip(shown, sent, strict=True)), \
+        "the window shows what play sent it"
     assert "frames out" in capsys.readouterr().out
