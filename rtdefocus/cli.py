@@ -416,6 +416,9 @@ def _add_play(sub):
     p.add_argument("--fps", type=float, help="target frame rate (default: the source's, else 30)")
     p.add_argument("--method", default="ycbcr", help="ycbcr (default) | rgb | wiener | none")
     p.add_argument("--backend", default="auto", choices=("auto", "opencl", "numpy"))
+    p.add_argument("--flatten", nargs="?", const="auto", metavar="BRIGHTNESS",
+                   help="show the input as on a uniform white wall (the calibration's albedo and "
+                   "ambient); optional brightness, camera linear light (default auto)")
     p.add_argument("--iterations", type=int,
                    help="solver iterations per frame (default: adaptive in the window, the "
                    "Compensator's budget for files, until converged for slides)")
@@ -433,7 +436,9 @@ def cmd_play(args) -> int:
     from .stream import Player, open_sink, open_source
 
     calib = Calibration.load(args.calibration)
-    comp = Compensator(calib, backend=args.backend, method=args.method)
+    flat = {} if args.flatten is None else {
+        "surface": "flatten", "brightness": "auto" if args.flatten == "auto" else float(args.flatten)}
+    comp = Compensator(calib, backend=args.backend, method=args.method, **flat)
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
                      camera_fps=args.camera_fps) as source:

@@ -136,6 +136,7 @@ class Compensator:
         self.wiener_nsr = float(wiener_nsr)
         self.backend = _resolve_backend(backend)
         self.surface = surface
+        self.brightness = brightness
         self._surface = (SurfaceModel.from_calibration(calib, brightness)
                          if surface == "flatten" else None)
         self._lut = np.asarray(calib.lut, dtype=np.float32)
