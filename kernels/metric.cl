@@ -10,10 +10,17 @@
  * the first stage of the reductions the line search needs (solver.cl:reduce_partials does the
  * second stage).
  *
- *   metric_residual(fp, target, q, partials, H, W)              e = fp - target; writes q
- *   metric_update(fp, fs, t, target, fp_out, q, partials, H, W) fp_out = fp + t fs, e = fp_out - target;
+ * With HAS_SCALE (the surface's albedo folded into the operator, surface="flatten"; DESIGN.md §3):
+ * a per-pixel, per-channel scale S (float32 (3, H, W), argument `scale`) multiplies every residual,
+ * e = S (fp - target) and e = S fs, and the field is q = S Q e, so that 2 F^T q is the gradient of
+ * d(S (F P - target)). The <fs, v> of metric_curvature stays unscaled (v = q already carries S).
+ * Without it `scale` is never read (any buffer will do).
+ *
+ *   metric_residual(fp, target, q, scale, partials, H, W)       e = fp - target; writes q
+ *   metric_update(fp, fs, t, target, fp_out, q, scale, partials, H, W)
+ *                                                               fp_out = fp + t fs, e = fp_out - target;
  *                                                               writes fp_out and q
- *   metric_curvature(fs, v, with_dot, partials, H, W)           e = fs; writes nothing but partials
+ *   metric_curvature(fs, v, with_dot, scale, partials, H, W)    e = fs; writes nothing but partials
  *   partials[0 * n_groups + g] = work-group g's share of <e, Q e>
  *   partials[1 * n_groups + g] = its share of <e, v> (metric_curvature with with_dot != 0; else 0)
  *
@@ -25,7 +32,8 @@
  *   SIMD units want). Global size (ceil(ceil(W/16)/LX)*LX, ceil(H/LY)*LY), local (LX, LY).
  *
  * Constants (-D): A0_rc, A1_rc for r, c in 0..2 (float literals), HAS_SPATIAL (0: no Laplacian,
- * e.g. the per-channel RGB metric), VARIANT_GPU or VARIANT_CPU, LX, LY (LX*LY a power of two).
+ * e.g. the per-channel RGB metric), HAS_SCALE (0/1, default 0), VARIANT_GPU or VARIANT_CPU, LX, LY
+ * (LX*LY a power of two).
  */
 #include "common.h"
 
@@ -33,6 +41,9 @@
 #error "metric.cl needs -D LX, LY, HAS_SPATIAL, A0_rc/A1_rc and VARIANT_CPU or VARIANT_GPU"
 #endif
 #define WG (LX * LY)
+#ifndef HAS_SCALE
+#define HAS_SCALE 0
+#endif
 
 #define MODE_RESIDUAL 0   /* e = a - c          */
 #define MODE_UPDATE 1     /* e = (a + t b) - c  */
@@ -49,11 +60,15 @@ inline void reduce_group(__local float4 *scratch, const float2 acc, __global flo
 
 /* The residual at pixel i, all three channels; `mode` is a literal at every call site. */
 inline float3 e_at(const int mode, __global const float *restrict a, __global const float *restrict b,
-                   const float t, __global const float *restrict c, const size_t i, const size_t hw)
+                   const float t, __global const float *restrict c, __global const float *restrict sc,
+                   const size_t i, const size_t hw)
 {
     float3 v = (float3)(a[i], a[i + hw], a[i + 2 * hw]);
     if (mode == MODE_UPDATE) v += t * (float3)(b[i], b[i + hw], b[i + 2 * hw]);
     if (mode != MODE_PLAIN) v -= (float3)(c[i], c[i + hw], c[i + 2 * hw]);
+#if HAS_SCALE
+    v *= (float3)(sc[i], sc[i + hw], sc[i + 2 * hw]);
+#endif
     return v;
 }
 
@@ -63,17 +78,17 @@ inline float3 e_at(const int mode, __global const float *restrict a, __global co
 
 /* Q e at (x, y) from the residual there (`e`) and at its in-frame neighbours. */
 inline float3 q_at(const int mode, __global const float *restrict a, __global const float *restrict b,
-                   const float t, __global const float *restrict c, const int x, const int y,
-                   const int H, const int W, const float3 e)
+                   const float t, __global const float *restrict c, __global const float *restrict sc,
+                   const int x, const int y, const int H, const int W, const float3 e)
 {
     float3 q = MAT3(A0, e);
 #if HAS_SPATIAL
     const size_t hw = (size_t)H * W, i = IDX((size_t)y, x, W);
     float3 lap = (float3)(0.0f);
-    if (x > 0) lap += e - e_at(mode, a, b, t, c, i - 1, hw);
-    if (x < W - 1) lap += e - e_at(mode, a, b, t, c, i + 1, hw);
-    if (y > 0) lap += e - e_at(mode, a, b, t, c, i - W, hw);
-    if (y < H - 1) lap += e - e_at(mode, a, b, t, c, i + W, hw);
+    if (x > 0) lap += e - e_at(mode, a, b, t, c, sc, i - 1, hw);
+    if (x < W - 1) lap += e - e_at(mode, a, b, t, c, sc, i + 1, hw);
+    if (y > 0) lap += e - e_at(mode, a, b, t, c, sc, i - W, hw);
+    if (y < H - 1) lap += e - e_at(mode, a, b, t, c, sc, i + W, hw);
     q += MAT3(A1, lap);
 #endif
     return q;
@@ -91,20 +106,29 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
                            __global const float *restrict b, const float t,
                            __global const float *restrict c, __global float *restrict a_out,
                            __global float *restrict q, __global const float *restrict v,
-                           const int with_dot, const int H, const int W)
+                           const int with_dot, __global const float *restrict sc, const int H,
+                           const int W)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     float2 acc = (float2)(0.0f);
     if (x < W && y < H) {
         const size_t hw = (size_t)H * W, i = IDX((size_t)y, x, W);
-        const float3 e = e_at(mode, a, b, t, c, i, hw);
-        const float3 qv = q_at(mode, a, b, t, c, x, y, H, W, e);
+        const float3 e = e_at(mode, a, b, t, c, sc, i, hw);
+        const float3 qv = q_at(mode, a, b, t, c, sc, x, y, H, W, e);
         if (mode == MODE_UPDATE)
             store3(a_out, i, hw, (float3)(a[i], a[i + hw], a[i + 2 * hw])
                                  + t * (float3)(b[i], b[i + hw], b[i + 2 * hw]));
+#if HAS_SCALE
+        if (mode != MODE_PLAIN)
+            store3(q, i, hw, qv * (float3)(sc[i], sc[i + hw], sc[i + 2 * hw]));
+        acc.x = dot(e, qv);
+        if (with_dot) acc.y = dot((float3)(a[i], a[i + hw], a[i + 2 * hw]),
+                                  (float3)(v[i], v[i + hw], v[i + 2 * hw]));
+#else
         if (mode != MODE_PLAIN) store3(q, i, hw, qv);
         acc.x = dot(e, qv);
         if (with_dot) acc.y = dot(e, (float3)(v[i], v[i + hw], v[i + 2 * hw]));
+#endif
     }
     return acc;
 }
@@ -139,12 +163,15 @@ inline void st16(__global float *restrict p, const size_t row, const int xs, con
 }
 
 inline float16 e16(const int mode, __global const float *restrict a, __global const float *restrict b,
-                   const float t, __global const float *restrict c, const size_t row, const int xs,
-                   const int W)
+                   const float t, __global const float *restrict c, __global const float *restrict sc,
+                   const size_t row, const int xs, const int W)
 {
     float16 v = ld16(a, row, xs, W);
     if (mode == MODE_UPDATE) v += t * ld16(b, row, xs, W);
     if (mode != MODE_PLAIN) v -= ld16(c, row, xs, W);
+#if HAS_SCALE
+    v *= ld16(sc, row, xs, W);
+#endif
     return v;
 }
 
@@ -154,7 +181,8 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
                            __global const float *restrict b, const float t,
                            __global const float *restrict c, __global float *restrict a_out,
                            __global float *restrict q, __global const float *restrict v,
-                           const int with_dot, const int H, const int W)
+                           const int with_dot, __global const float *restrict sc, const int H,
+                           const int W)
 {
     const int x0 = get_global_id(0) * 16, y = get_global_id(1);
     float2 acc = (float2)(0.0f);
@@ -165,13 +193,13 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
     float16 e[3], lap[3];
     for (int k = 0; k < 3; ++k) {
         const size_t r = k * hw + row;
-        e[k] = e16(mode, a, b, t, c, r, x0, W);
+        e[k] = e16(mode, a, b, t, c, sc, r, x0, W);
 #if HAS_SPATIAL
         /* A missing neighbour (frame border) contributes nothing: stand in the pixel itself. */
-        const float16 l = select(e[k], e16(mode, a, b, t, c, r, x0 - 1, W), xi - 1 >= 0);
-        const float16 rr = select(e[k], e16(mode, a, b, t, c, r, x0 + 1, W), xi + 1 < W);
-        const float16 u = y > 0 ? e16(mode, a, b, t, c, r - W, x0, W) : e[k];
-        const float16 d = y < H - 1 ? e16(mode, a, b, t, c, r + W, x0, W) : e[k];
+        const float16 l = select(e[k], e16(mode, a, b, t, c, sc, r, x0 - 1, W), xi - 1 >= 0);
+        const float16 rr = select(e[k], e16(mode, a, b, t, c, sc, r, x0 + 1, W), xi + 1 < W);
+        const float16 u = y > 0 ? e16(mode, a, b, t, c, sc, r - W, x0, W) : e[k];
+        const float16 d = y < H - 1 ? e16(mode, a, b, t, c, sc, r + W, x0, W) : e[k];
         lap[k] = 4.0f * e[k] - l - rr - u - d;
 #else
         lap[k] = (float16)(0.0f);
@@ -190,9 +218,16 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
 #endif
         const size_t r = k * hw + row;
         if (mode == MODE_UPDATE) st16(a_out, r, x0, W, ld16(a, r, x0, W) + t * ld16(b, r, x0, W));
+#if HAS_SCALE
+        if (mode != MODE_PLAIN) st16(q, r, x0, W, qk * ld16(sc, r, x0, W));
+        dsum += e[k] * qk;
+        if (with_dot)
+            acc.y += hsum16(select((float16)(0.0f), ld16(a, r, x0, W) * ld16(v, r, x0, W), inside));
+#else
         if (mode != MODE_PLAIN) st16(q, r, x0, W, qk);
         dsum += e[k] * qk;
         if (with_dot) acc.y += hsum16(select((float16)(0.0f), e[k] * ld16(v, r, x0, W), inside));
+#endif
     }
     acc.x = hsum16(select((float16)(0.0f), dsum, inside));
     return acc;
@@ -203,11 +238,11 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
  * fp, target: float32 (3, H, W) in; q: float32 (3, H, W) out. */
 __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void metric_residual(__global const float *restrict fp, __global const float *restrict target,
-                     __global float *restrict q, __global float *restrict partials,
-                     const int H, const int W)
+                     __global float *restrict q, __global const float *restrict scale,
+                     __global float *restrict partials, const int H, const int W)
 {
     __local float4 scratch[WG];
-    const float2 acc = metric_pixel(MODE_RESIDUAL, fp, fp, 0.0f, target, q, q, fp, 0, H, W);
+    const float2 acc = metric_pixel(MODE_RESIDUAL, fp, fp, 0.0f, target, q, q, fp, 0, scale, H, W);
     reduce_group(scratch, acc, partials);
 }
 
@@ -217,11 +252,11 @@ void metric_residual(__global const float *restrict fp, __global const float *re
 __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void metric_update(__global const float *restrict fp, __global const float *restrict fs, const float t,
                    __global const float *restrict target, __global float *restrict fp_out,
-                   __global float *restrict q, __global float *restrict partials,
-                   const int H, const int W)
+                   __global float *restrict q, __global const float *restrict scale,
+                   __global float *restrict partials, const int H, const int W)
 {
     __local float4 scratch[WG];
-    const float2 acc = metric_pixel(MODE_UPDATE, fp, fs, t, target, fp_out, q, fp, 0, H, W);
+    const float2 acc = metric_pixel(MODE_UPDATE, fp, fs, t, target, fp_out, q, fp, 0, scale, H, W);
     reduce_group(scratch, acc, partials);
 }
 
@@ -229,10 +264,11 @@ void metric_update(__global const float *restrict fp, __global const float *rest
  * with_dot != 0 also partials[1] += <fs, v> (v: float32 (3, H, W), e.g. the field q). */
 __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void metric_curvature(__global const float *restrict fs, __global const float *restrict v,
-                      const int with_dot, __global float *restrict partials, const int H, const int W)
+                      const int with_dot, __global const float *restrict scale,
+                      __global float *restrict partials, const int H, const int W)
 {
     __local float4 scratch[WG];
     const float2 acc = metric_pixel(MODE_PLAIN, fs, fs, 0.0f, fs, partials, partials, v,
-                                    with_dot, H, W);
+                                    with_dot, scale, H, W);
     reduce_group(scratch, acc, partials);
 }

@@ -20,7 +20,7 @@ from .errors import InputError
 from .reference.lut import decode_lut, encode_lut, increasing_lut
 
 __all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "edge_pixels", "ImageScores",
-           "score_image"]
+           "score_image", "coefficient_of_variation", "psnr_affine"]
 
 # Canny thresholds for the edge-pixel counts (the paper's Table 1 gives none; OpenCV's usual pair).
 CANNY_LO, CANNY_HI = 100, 200
@@ -199,3 +199,28 @@ def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
     shown = {"no correction": raw_view, "geometry only": geometry_view,
              "geometry + defocus": views[ours], "sharp reference": reference}
     return scores, shown
+
+
+def coefficient_of_variation(view: np.ndarray, mask: np.ndarray) -> float:
+    """Spatial coefficient of variation (std / mean) of the luma (mean of RGB) of ``view``
+    ((H, W, 3)) over ``mask`` ((H, W) bool): how uniform a flat field looks."""
+    lum = np.asarray(view, dtype=np.float64).mean(axis=2)[np.asarray(mask, dtype=bool)]
+    return float(lum.std() / max(lum.mean(), 1e-12))
+
+
+def psnr_affine(view: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB, range 1) of ``reference`` against ``α · view + β``, the one global gain and
+    offset (shared by the channels) that fit it best in least squares over ``mask``: closeness
+    up to brightness and black level (a picture on a dimmer, uniform wall scores as well as on a
+    bright one). ``view``, ``reference``: (H, W, 3), uint8 (scaled to [0, 1]) or float."""
+    m = np.asarray(mask, dtype=bool)
+
+    def unit(a):
+        a = np.asarray(a)
+        return a.astype(np.float64) / (255.0 if a.dtype == np.uint8 else 1.0)
+
+    v, r = unit(view)[m].ravel(), unit(reference)[m].ravel()
+    X = np.stack([v, np.ones_like(v)], axis=1)
+    coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+    mse = float(np.mean((X @ coef - r) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)

@@ -50,6 +50,9 @@ class ClSolveOps:
     metric : Metric
     blur_variant : {"cpu", "gpu"}, optional
         Passed to :class:`ClBlur` (default: by device type).
+    scale : (3, H, W) float32, optional
+        Per-pixel scale S of the residual (``metric.cl`` with HAS_SCALE; the surface's albedo
+        when the compensation flattens it): d = d(S (F P − target)). None: no scale.
 
     Attributes
     ----------
@@ -66,7 +69,8 @@ class ClSolveOps:
 
     backend = "opencl"
 
-    def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None):
+    def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None,
+                 scale=None):
         # pyopencl on first use, not at import: NumPy-only runs skip its start-up cost.
         import pyopencl as cl
         import pyopencl.array as cla
@@ -99,6 +103,8 @@ class ClSolveOps:
             ly = max(1, min(16, wg // lx))
             mdef = {"VARIANT_GPU": 1}
             nx = w
+        if scale is not None:
+            mdef["HAS_SCALE"] = 1
         self._prg_m = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
                                                     "LX": lx, "LY": ly})
         sdef = {"ITEMS": items, "VEC": vec, "ENC_T": ENC_T, "ENC_STEPS": ENC_STEPS}
@@ -120,6 +126,14 @@ class ClSolveOps:
         self._sums = cla.zeros(self.queue, 4, np.float32)
         self._sums_host = np.zeros(4, np.float32)
         self._codes = cla.zeros(self.queue, (h, w, 3), np.uint8)
+        self.scale_max = 1.0
+        self._scale = self._partials                # never read without HAS_SCALE
+        if scale is not None:
+            scale = np.ascontiguousarray(scale, dtype=np.float32)
+            if scale.shape != self.shape:
+                raise InputError(f"scale must be {self.shape} (3, H, W); got {scale.shape}")
+            self._scale = cla.to_device(self.queue, scale)
+            self.scale_max = float(scale.max())
         self._luts: dict = {}
         # Own kernel objects (cl.Kernel): kernel arguments are per-object state, and programs are
         # shared between instances through the runtime's cache.
@@ -175,21 +189,21 @@ class ClSolveOps:
     def metric_residual(self, fp, target, q) -> float:
         """q = Q (fp − target); returns d = ⟨e, q⟩."""
         self._k["metric_residual"](self.queue, self._m_global, self._m_local, fp.data, target.data,
-                                   q.data, self._partials.data, self._h, self._w)
+                                   q.data, self._scale.data, self._partials.data, self._h, self._w)
         return float(self._reduce(self._m_groups, 1)[0])
 
     def metric_update(self, fp, fs, t: float, target, fp_out, q) -> float:
         """fp_out = fp + t fs; q = Q (fp_out − target); returns d."""
         self._k["metric_update"](self.queue, self._m_global, self._m_local, fp.data, fs.data,
                                  np.float32(t), target.data, fp_out.data, q.data,
-                                 self._partials.data, self._h, self._w)
+                                 self._scale.data, self._partials.data, self._h, self._w)
         return float(self._reduce(self._m_groups, 1)[0])
 
     def metric_curvature(self, fs, v=None) -> tuple[float, float]:
         """(⟨fs, Q fs⟩, ⟨fs, v⟩) — the second is 0 when v is None."""
         self._k["metric_curvature"](self.queue, self._m_global, self._m_local, fs.data,
                                     (v if v is not None else fs).data, np.int32(v is not None),
-                                    self._partials.data, self._h, self._w)
+                                    self._scale.data, self._partials.data, self._h, self._w)
         c, dv = self._reduce(self._m_groups, 2)
         return float(c), float(dv)
 

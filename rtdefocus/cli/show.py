@@ -74,6 +74,20 @@ examples:
 """
 
 
+def _brightness(text: str) -> str | float:
+    """``--flatten`` brightness: ``auto`` or a positive number (camera linear light)."""
+    if text == "auto":
+        return text
+    try:
+        value = float(text)
+        if not value > 0:
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"brightness must be 'auto' or a positive number (e.g. 0.3); got {text!r}") from None
+    return value
+
+
 def _add_play(sub):
     p = sub.add_parser("play", help="stream a video, a camera or slides through the compensation to "
                        "the projector (or to files)", epilog=PLAY_EPILOG,
@@ -88,6 +102,9 @@ def _add_play(sub):
     p.add_argument("--fps", type=float, help="target frame rate (default: the source's, else 30)")
     p.add_argument("--method", default="ycbcr", help="ycbcr (default) | rgb | wiener | none")
     p.add_argument("--backend", default="auto", choices=("auto", "opencl", "numpy"))
+    p.add_argument("--flatten", nargs="?", const="auto", type=_brightness, metavar="BRIGHTNESS",
+                   help="show the input as on a uniform white wall (the calibration's albedo and "
+                   "ambient); optional brightness, camera linear light (default auto)")
     p.add_argument("--iterations", type=int,
                    help="solver iterations per frame (default: adaptive in the window, the "
                    "Compensator's budget for files, until converged for slides)")
@@ -105,7 +122,8 @@ def cmd_play(args) -> int:
     from ..stream import Player, open_sink, open_source
 
     calib = Calibration.load(args.calibration)
-    comp = Compensator(calib, backend=args.backend, method=args.method)
+    flat = {} if args.flatten is None else {"surface": "flatten", "brightness": args.flatten}
+    comp = Compensator(calib, backend=args.backend, method=args.method, **flat)
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
                      camera_fps=args.camera_fps) as source:

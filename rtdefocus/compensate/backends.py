@@ -22,7 +22,7 @@ BACKENDS = ("numpy", "opencl")
 
 
 def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None,
-                   blur: str = "gather", blur_variant: str | None = None):
+                   blur: str = "gather", blur_variant: str | None = None, scale=None):
     """The ops object of a backend for the kernel field ``(psfs, idx, wts)`` and a metric.
 
     Parameters
@@ -36,24 +36,27 @@ def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None
         NumPy only; see :class:`~rtdefocus.reference.ops.NumpyOps`.
     blur_variant : "cpu" | "gpu", optional
         OpenCL only; default by device type.
+    scale : (3, H, W) float32, optional
+        Per-pixel residual scale (the surface's albedo, ``surface="flatten"``); see
+        :class:`~rtdefocus.reference.ops.NumpyOps`.
 
     Returns
     -------
     NumpyOps or ClSolveOps
     """
     if backend == "numpy":
-        return NumpyOps(psfs, idx, wts, metric, blur=blur)
+        return NumpyOps(psfs, idx, wts, metric, blur=blur, scale=scale)
     if backend == "opencl":
         # (pyopencl itself is imported, and a device opened, only here: by get_runtime and
         # ClSolveOps on first use.)
         return ClSolveOps(runtime or get_runtime(), psfs, idx, wts, metric,
-                          blur_variant=blur_variant)
+                          blur_variant=blur_variant, scale=scale)
     raise InputError(f"backend must be one of {BACKENDS}; got {backend!r}")
 
 
 def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
                 solver: str = "fista", runtime=None, blur: str = "gather",
-                blur_variant: str | None = None) -> Solver:
+                blur_variant: str | None = None, scale=None) -> Solver:
     """A :class:`~.solvers.Solver` for a kernel field on a backend named by string.
 
     Parameters
@@ -63,11 +66,11 @@ def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = 
         Default: :meth:`Metric.ycbcr` with :data:`~rtdefocus.reference.metric.DEFAULT_WEIGHTS`.
     backend : "numpy" | "opencl"
     solver : "fista" | "pg"
-    runtime, blur, blur_variant : as for :func:`make_solve_ops`.
+    runtime, blur, blur_variant, scale : as for :func:`make_solve_ops`.
     """
     check_solver(solver)                 # before any device work
     if metric is None:
         metric = Metric.ycbcr(DEFAULT_WEIGHTS)
     ops = make_solve_ops(backend, psfs, idx, wts, metric, runtime=runtime, blur=blur,
-                         blur_variant=blur_variant)
+                         blur_variant=blur_variant, scale=scale)
     return Solver(ops, solver=solver)

@@ -32,6 +32,7 @@ from ..reference.metric import DEFAULT_WEIGHTS, Metric
 from .backends import make_solve_ops
 from .motion import MotionEstimator
 from .solvers import SOLVERS, SolveInfo, Solver
+from .surface import SURFACES, SurfaceModel
 from .wiener import wiener_prefilter
 
 log = logging.getLogger(__name__)
@@ -83,13 +84,23 @@ class Compensator:
         Noise-to-signal constant of the ``"wiener"`` method.
     blur_variant : "cpu" | "gpu", optional
         OpenCL blur kernel shape (default by device type).
+    surface : "keep" | "flatten"
+        ``"keep"`` (default): the target is what an in-focus projector would show on the same
+        walls (their colour, texture and the room light stay). ``"flatten"``: the input as on a
+        uniform white wall, through the calibration's albedo and ambient, in the same solve
+        (:mod:`.surface`; needs the radiometry section).
+    brightness : "auto" | float
+        ``surface="flatten"`` only: the global brightness b of a white input (camera linear
+        light); "auto" keeps clipping on a white input to a small share of the wall.
 
     Attributes
     ----------
     last_info : dict
         Of the last :meth:`compensate` / :meth:`solve`: ``iterations``, ``distances``,
         ``seconds`` (per stage: warp, decode, solve, encode, total), ``solver``, ``method``,
-        ``warm_start``, ``restarts``, ``converged``.
+        ``warm_start``, ``restarts``, ``converged``; with ``surface="flatten"`` also
+        ``brightness`` and ``clipped`` / ``clipped_dark``, the shares of lit pixels showing
+        content whose target is above / below what the projector can reach.
     backend : "opencl" | "numpy" (resolved)
     """
 
@@ -97,10 +108,13 @@ class Compensator:
                  iterations: int | None = None, tol: float = 0.0,
                  weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS,
                  headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
-                 wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None):
+                 wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None,
+                 surface: str = "keep", brightness: str | float = "auto"):
         _check_args(calib, method=method, solver=solver, backend=backend,
                     iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
                     wiener_nsr=wiener_nsr, blur_variant=blur_variant)
+        if surface not in SURFACES:
+            raise InputError(f"surface must be one of {SURFACES}; got {surface!r}")
         if method != "none" and not calib.has_psf:
             raise CalibrationFileError(
                 f"method {method!r} needs the calibration's PSF section (the defocus kernels), "
@@ -118,6 +132,10 @@ class Compensator:
         self.warp_backend = warp_backend
         self.wiener_nsr = float(wiener_nsr)
         self.backend = _resolve_backend(backend)
+        self.surface = surface
+        self.brightness = brightness
+        self._surface = (SurfaceModel.from_calibration(calib, brightness)
+                         if surface == "flatten" else None)
         self._lut = np.asarray(calib.lut, dtype=np.float32)
         self._lut_inc = increasing_lut(self._lut)
         self._solver: Solver | None = None
@@ -127,11 +145,13 @@ class Compensator:
         self._prev_target: np.ndarray | None = None
         self._motion = MotionEstimator()
         self.last_info: dict = {}
+        self._last_flat: dict = {}
         if method in ("ycbcr", "rgb"):
             metric = Metric.ycbcr(self.weights) if method == "ycbcr" else Metric.rgb()
             # NumPy: the filter2D form of F (exactly the same operator, several times faster).
+            scale = None if self._surface is None else self._surface.scale
             ops = make_solve_ops(self.backend, calib.psfs, calib.pix_idx, calib.pix_wts, metric,
-                                 blur="filter2d", blur_variant=blur_variant)
+                                 blur="filter2d", blur_variant=blur_variant, scale=scale)
             self._solver = Solver(ops, solver=solver)
 
     # ------------------------------------------------------------------ public
@@ -217,14 +237,20 @@ class Compensator:
                              f"{np.shape(P0)}")
         iters = self.iterations if iterations is None else int(iterations)
         t0 = time.perf_counter()
+        flat = None
+        if self._surface is not None:
+            inp = apply_headroom(target, self.headroom)
+            target = flat = self._surface.target(inp)
         if self._solver is not None:
             P, sinfo = self._solver.solve(target, P0, iterations=iters, tol=self.tol,
-                                          headroom=self.headroom)
+                                          headroom=self.headroom if flat is None else None)
             self.reset()          # the solver no longer holds a video frame
         else:
-            P = self._direct(apply_headroom(target, self.headroom))
+            P = self._direct(target if flat is not None else apply_headroom(target, self.headroom))
             sinfo = SolveInfo("direct")
         info = self._info(sinfo, warm=P0 is not None)
+        if flat is not None:
+            self._surface_info(info, inp, flat)
         info["seconds"]["solve"] = time.perf_counter() - t0
         self.last_info = info
         return P, info
@@ -235,6 +261,11 @@ class Compensator:
             c = self.calib
             return wiener_prefilter(target, c.psfs, c.psf_plane, c.plane_map(), self.wiener_nsr)
         return np.clip(target, 0.0, 1.0).astype(np.float32)
+
+    def _surface_info(self, info: dict, I: np.ndarray, target: np.ndarray) -> None:
+        above, below = self._surface.clipped(I, target)
+        info.update(surface="flatten", brightness=self._surface.brightness, clipped=above,
+                    clipped_dark=below)
 
     def _info(self, sinfo: SolveInfo, warm: bool) -> dict:
         return {"method": self.method, "solver": sinfo.solver, "backend": self.backend,
@@ -252,21 +283,26 @@ class Compensator:
         lo, scale = headroom_params(self.headroom)
         sec = {}
         if self._solver is None:
-            if self.method == "none" and self.headroom is None:
+            if self.method == "none" and self.headroom is None and self._surface is None:
                 return warped.copy(), self._info(SolveInfo("direct"), False) | {"seconds": sec}
             t0 = time.perf_counter()
             target = decode_lut(warped, self._lut_inc, self.headroom)
+            info = self._info(SolveInfo("direct"), False)
+            if self._surface is not None:
+                inp, target = target, self._surface.target(target)
+                self._surface_info(info, inp, target)
             t1 = time.perf_counter()
             P = self._direct(target)
             t2 = time.perf_counter()
             out = encode_lut(P, self._lut_inc)
             sec.update(decode=t1 - t0, solve=t2 - t1, encode=time.perf_counter() - t2)
-            return out, self._info(SolveInfo("direct"), False) | {"seconds": sec}
+            return out, info | {"seconds": sec}
         s = self._solver
         ops = s.ops
         t0 = time.perf_counter()
         start = self._start_solve(warped, lo, scale, warm_start)
         ops.finish()
+        flat_info = self._last_flat
         t1 = time.perf_counter()
         sinfo = s.run(iters, self.tol)
         t2 = time.perf_counter()
@@ -275,6 +311,8 @@ class Compensator:
         info = self._info(sinfo, start != "cold")
         info["start"] = start
         info["seconds"] = sec
+        if self._surface is not None:
+            info.update(flat_info)
         return out, info
 
     def _start_solve(self, warped: np.ndarray, lo: float, scale: float, warm_start: bool) -> str:
@@ -299,6 +337,14 @@ class Compensator:
         ops.decode(warped, self._lut_inc, lo, scale, s.target)
         s.target_changed()
         target = ops.download(s.target)
+        if self._surface is not None:
+            # surface="flatten": T' = (b I − E) / A, solved with the residual scaled by A (the
+            # solver's ops carry the scale); the motion and warm start work on T' alike.
+            inp, target = target, self._surface.target(target)
+            ops.upload(target, s.target)
+            above, below = self._surface.clipped(inp, target)
+            self._last_flat = {"surface": "flatten", "brightness": self._surface.brightness,
+                               "clipped": above, "clipped_dark": below}
         prev_target = self._prev_target
         self._prev_warped = warped.copy()
         self._prev_target = target

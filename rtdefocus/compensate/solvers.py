@@ -139,7 +139,8 @@ class Solver:
         self.backend = ops.backend
         self.shape = ops.shape
         # 5 % over the estimate: it is not a strict bound for a spatially varying F (see there).
-        self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05
+        # A residual scale S (ops.scale_max, surface="flatten") scales the Hessian by up to max S².
+        self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05 * ops.scale_max ** 2
         new = self.ops.new
         self.target = new()
         self.P, self._P_prev, self._P_alt = new(), new(), new()

@@ -38,17 +38,22 @@ class NumpyOps:
     metric : Metric
     blur : "gather" (:func:`blur_forward`, the readable reference) or "filter2d" (the same
         operator through cv2.filter2D per PSF, several times faster on a CPU).
+    scale : (3, H, W) float32, optional
+        Per-pixel scale S of every residual (the surface's albedo when the compensation flattens
+        it, DESIGN.md §3): the distance is ``d(S (F P − target))`` and the field ``q = S Q S e``,
+        so that ``2 Fᵀ q`` stays its gradient. None: no scale (``kernels/metric.cl`` HAS_SCALE).
 
     Attributes
     ----------
     psfs : (N, k, k) float32, the field's PSFs (the solver's step size is estimated from them).
     metric : Metric
     shape : ``(3, H, W)`` of every image.
+    scale_max : the largest scale (1.0 without one): the Hessian grows with its square.
     """
 
     backend = "numpy"
 
-    def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather"):
+    def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather", scale=None):
         self.psfs, self.idx, self.wts = check_field(psfs, idx, wts)
         if blur not in ("gather", "filter2d"):
             raise InputError(f"blur must be 'gather' or 'filter2d'; got {blur!r}")
@@ -58,6 +63,13 @@ class NumpyOps:
         self._adj = blur_adjoint if blur == "gather" else blur_adjoint_filter2d
         h, w = self.idx.shape[:2]
         self.shape = (3, h, w)
+        self.scale = None
+        self.scale_max = 1.0
+        if scale is not None:
+            self.scale = np.ascontiguousarray(scale, dtype=np.float32)
+            if self.scale.shape != self.shape:
+                raise InputError(f"scale must be {self.shape} (3, H, W); got {self.scale.shape}")
+            self.scale_max = float(self.scale.max())
         self._enc_key: bytes | None = None      # the LUT whose encoder tables are cached
         self._enc_tables = None
 
@@ -90,16 +102,22 @@ class NumpyOps:
 
     def metric_residual(self, fp, target, q) -> float:
         e = fp - target
-        q[...] = metric_field(e, self.metric)
-        return _vdot(e, q)
+        if self.scale is None:
+            q[...] = metric_field(e, self.metric)
+            return _vdot(e, q)
+        e *= self.scale                              # e = S (F P − target)
+        qe = metric_field(e, self.metric)
+        np.multiply(qe, self.scale, out=q)           # q = S Q e
+        return _vdot(e, qe)
 
     def metric_update(self, fp, fs, t, target, fp_out, q) -> float:
         fp_out[...] = fp + np.float32(t) * fs
         return self.metric_residual(fp_out, target, q)
 
     def metric_curvature(self, fs, v=None) -> tuple[float, float]:
-        qf = metric_field(fs, self.metric)
-        return _vdot(fs, qf), (_vdot(fs, v) if v is not None else 0.0)
+        e = fs if self.scale is None else fs * self.scale
+        qf = metric_field(e, self.metric)
+        return _vdot(e, qf), (_vdot(fs, v) if v is not None else 0.0)
 
     def pg_direction(self, P, g, s) -> float:
         blocked = ((P <= 0) & (g > 0)) | ((P >= 1) & (g < 0))

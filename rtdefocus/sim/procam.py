@@ -32,8 +32,28 @@ from .truth import GroundTruth
 
 log = logging.getLogger(__name__)
 
+TEXTURES = ("none", "faint", "fabric")
 SHADING_MEAN = 0.85         # mean relative irradiance over the projector frame
 _OUTSIDE = -1.0e5           # remap coordinate of camera pixels that see no projector light
+
+
+def _fabric(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """The "fabric" texture's albedo factor (3, N) at wall coordinates ``s`` (m along the wall
+    from the fold), ``y`` (m, down; 0 at the projector's centre row) on ``wall`` (0 left, 1 right)."""
+    out = np.ones((3, s.size))
+    w0, w1 = wall == 0, wall == 1
+    # Left: a woven partition, ±8 % in a 3 cm basket weave.
+    weave = 1.0 + 0.08 * np.sin(2 * math.pi * s / 0.03) * np.sin(2 * math.pi * y / 0.03)
+    out[:, w0] *= weave[w0]
+    # Right: soft wood-grain-like bands (±6 %, 9 cm, slightly wavy) ...
+    grain = 1.0 + 0.06 * np.sin(2 * math.pi * (y + 0.02 * np.sin(2 * math.pi * s / 0.4)) / 0.09)
+    out[:, w1] *= grain[w1]
+    # ... and a printed poster, coloured diagonal stripes (albedo × 0.45..1.0 per channel).
+    poster = w1 & (s > 0.30) & (s < 0.80) & (y > -0.40) & (y < 0.10)
+    ph = 2 * math.pi * (s / 0.16 + y / 0.23)
+    for c, off in enumerate((0.0, 2.1, 4.2)):
+        out[c, poster] *= 0.725 + 0.275 * np.cos(ph[poster] + off)
+    return out
 
 
 class VirtualProCam:
@@ -49,10 +69,15 @@ class VirtualProCam:
     seed : seed of the noise (and of the faint wall texture).
     projector_gamma : projector response, linear light = (v / 255) ** projector_gamma.
     camera_gamma : camera response, code = 255 · L ** (1 / camera_gamma).
-    ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean).
+    ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean);
+        None: the scene's (``Scene.ambient``), else 0.02.
     aperture : "disc" (pillbox) or "hex" (regular hexagon of circumradius r).
     chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus).
-    texture : add a faint (±4 %) smooth albedo texture to the walls.
+    texture : printed albedo texture of the walls: False / "none", True / "faint" (±4 %,
+        smooth), "fabric" (a woven partition: ±8 % weave of 3 cm period on the left wall; a
+        coloured striped poster (albedo × 0.45–1.0 per channel) and soft wood-grain bands on
+        the right one; the faint texture on both); None (default): the scene's
+        (``Scene.texture``). The ground truth's ``albedo_proj`` includes it.
     exposure : camera exposure (linear gain before the response curve); None (default) sets
         it so a full white frame peaks at 95 % of full scale.
 
@@ -65,9 +90,10 @@ class VirtualProCam:
 
     def __init__(self, preset: str | Scene = "cubicle", *, projector_size: tuple[int, int] = (800, 600),
                  camera_size: tuple[int, int] = (1280, 960), noise: float = 0.006, seed: int = 0,
-                 projector_gamma: float = 1.0, camera_gamma: float = 1.0, ambient: float = 0.02,
-                 aperture: str = "disc", chromatic: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 texture: bool = False, exposure: float | None = None):
+                 projector_gamma: float = 1.0, camera_gamma: float = 1.0,
+                 ambient: float | None = None, aperture: str = "disc",
+                 chromatic: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                 texture: bool | str | None = None, exposure: float | None = None):
         if isinstance(preset, Scene):
             scene, name = preset, "custom"
         elif preset in PRESETS:
@@ -86,6 +112,13 @@ class VirtualProCam:
         if projector_gamma <= 0 or camera_gamma <= 0 or (exposure is not None and exposure <= 0):
             raise InputError("projector_gamma, camera_gamma and exposure must be > 0; got "
                              f"{projector_gamma}, {camera_gamma}, {exposure}")
+        if ambient is None:
+            ambient = 0.02 if scene.ambient is None else scene.ambient
+        if texture is None:
+            texture = scene.texture
+        texture = {False: "none", True: "faint"}.get(texture, texture)
+        if texture not in TEXTURES:
+            raise InputError(f"texture must be one of {TEXTURES} (or True/False); got {texture!r}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
 
@@ -100,7 +133,7 @@ class VirtualProCam:
         self.projector_gamma = float(projector_gamma)
         self.camera_gamma = float(camera_gamma)
         self.exposure = None if exposure is None else float(exposure)
-        self.texture = bool(texture)
+        self.texture = texture
         self._rng = np.random.default_rng(seed)
         tex_rng = np.random.default_rng([seed, 7])
         self._tex_phase = tex_rng.uniform(0, 2 * math.pi, size=(2, 3))
@@ -221,7 +254,7 @@ class VirtualProCam:
         out = np.zeros((3, wall.size))
         hit = wall >= 0
         out[:, hit] = base[wall[hit]].T
-        if self.texture and hit.any():
+        if self.texture != "none" and hit.any():
             s = np.zeros(wall.size)
             for i, w in enumerate(self._walls):
                 sel = wall == i
@@ -233,6 +266,8 @@ class VirtualProCam:
                                 * np.sin(2 * math.pi * y / 0.29 + ph[0, 1])
                                 + np.sin(2 * math.pi * (s + y) / 0.61 + ph[0, 2]))
             out[:, hit] *= tex[hit]
+            if self.texture == "fabric":
+                out[:, hit] *= _fabric(s[hit], y[hit], wall[hit])
         return out
 
     def _build_camera_maps(self) -> None:

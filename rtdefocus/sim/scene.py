@@ -31,6 +31,11 @@ class Scene:
     camera_position : camera centre (m) in the projector's frame, beside and a bit above it; the
         camera is mounted on the projector (rolls with it) and looks at the lit area.
     albedo : RGB albedo of the (left, right) wall.
+    texture : printed texture of the walls when :class:`VirtualProCam` is not given one:
+        "none", "faint" (about ±4 %, smooth) or "fabric" (a woven partition on the left wall, a
+        coloured poster and wood-grain-like bands on the right one; see ``VirtualProCam``).
+    ambient : ambient irradiance relative to a full-on projector when ``VirtualProCam`` is not
+        given one (None: its default 0.02).
     """
 
     kind: str
@@ -44,6 +49,8 @@ class Scene:
     camera_position: tuple[float, float, float] = (0.4, -0.25, 0.0)
     albedo: tuple[tuple[float, float, float], tuple[float, float, float]] = (
         (0.86, 0.85, 0.81), (0.74, 0.76, 0.79))
+    texture: str = "none"
+    ambient: float | None = None
     description: str = ""
 
 
@@ -58,6 +65,10 @@ PRESETS: dict[str, Scene] = {
                     "in either image"),
     "offcenter": Scene("concave", fold_x_frac=0.3, wall_angles_deg=(35.0, 35.0),
                        description="concave corner with the fold at 30% of the projector width"),
+    "fabric": Scene("concave", albedo=((0.50, 0.56, 0.66), (0.84, 0.76, 0.58)), texture="fabric",
+                    ambient=0.06,
+                    description="cubicle with a blue-grey woven partition (left) and a beige wall "
+                    "with a printed poster (right), room light on: a coloured, textured screen"),
 }
 
 
