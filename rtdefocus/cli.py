@@ -431,7 +431,7 @@ video (--video): a moving clip from the photographs (still, slow pan 3 px/frame,
 (--budgets, warm and cold starts), wall-clock budgets (--fps) and the offline ceiling; writes
 video.md (gain over geometry only per segment, share of the offline gain, still after 1 s,
 frames to recover after the cut), video.json and video.png (per-frame gain). Examples:
-  rtdefocus eval --video -o video_out            800x600 cubicle, 97 frames (a few minutes)
+  rtdefocus eval --video -o video_out            800x600 cubicle, 78 frames (a few minutes)
   rtdefocus eval --video --quick                 400x300, 30 frames (under a minute)
   rtdefocus eval --video --calibration cubicle.npz   calibrated instead of the oracle kernels
 layouts: default | paper (corners + fold, as the paper) | dense (grid) | cross_fold (blended

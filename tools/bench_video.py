@@ -46,17 +46,13 @@ VARIANTS = ("full-window", "support", "trim-999")
 ITERS = 8
 
 
-def _frame_times(comp, image, iterations: int, warmup: int, repeats: int):
-    for _ in range(warmup):
-        comp.compensate(image, iterations=iterations, warm_start=True)
-    totals, stages = [], {}
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        comp.compensate(image, iterations=iterations, warm_start=True)
-        totals.append(time.perf_counter() - t0)
-        for k, v in comp.last_info["seconds"].items():
-            stages.setdefault(k, []).append(v)
-    return totals, {k: 1e3 * statistics.median(v) for k, v in stages.items()}
+def _time_frame(comp, image, iterations: int, stages: dict) -> float:
+    t0 = time.perf_counter()
+    comp.compensate(image, iterations=iterations, warm_start=True)
+    dt = time.perf_counter() - t0
+    for k, v in comp.last_info["seconds"].items():
+        stages.setdefault(k, []).append(v)
+    return dt
 
 
 def section_cost(args, out: dict) -> None:
@@ -76,29 +72,41 @@ def section_cost(args, out: dict) -> None:
     print(f"oracle cubicle kernels: {len(psfs)} PSFs of {psfs.shape[1]}x{psfs.shape[2]}, "
           f"exact support half-widths {psf_support(psfs).tolist()}, at 99.9 % energy "
           f"{psf_support(psfs, 0.999).tolist()}")
-    rows = []
-    frames = {}
+    comps, frames = {}, {}
     for variant in VARIANTS:
         c = calib
         ClBlur.use_support = variant != "full-window"
         if variant == "trim-999":
             c = replace(calib, psfs=trim_psfs(calib.psfs, 0.999))
-        comp = Compensator(c, backend="opencl")
+        comps[variant] = Compensator(c, backend="opencl")
         ClBlur.use_support = True
-        t0, st0 = _frame_times(comp, image, 0, args.warmup, args.repeats)
-        tn, stn = _frame_times(comp, image, ITERS, args.warmup, args.repeats)
-        fixed = 1e3 * statistics.median(t0)
-        per_it = 1e3 * (statistics.median(tn) - statistics.median(t0)) / ITERS
+    # Interleaved: every round times each variant in turn, so that the load of a shared
+    # machine falls on all of them alike; medians over the rounds.
+    times = {(v, n): [] for v in VARIANTS for n in (0, ITERS)}
+    stages = {(v, n): {} for v in VARIANTS for n in (0, ITERS)}
+    for rnd in range(args.warmup + args.repeats):
+        for v in VARIANTS:
+            for n in (0, ITERS):
+                dt = _time_frame(comps[v], image, n, stages[v, n] if rnd >= args.warmup else {})
+                if rnd >= args.warmup:
+                    times[v, n].append(dt)
+    rows = []
+    for v in VARIANTS:
+        comp = comps[v]
+        fixed = 1e3 * statistics.median(times[v, 0])
+        per_it = 1e3 * (statistics.median(times[v, ITERS]) - statistics.median(times[v, 0])) / ITERS
+        st0 = {k: 1e3 * statistics.median(x) for k, x in stages[v, 0].items()}
+        stn = {k: 1e3 * statistics.median(x) for k, x in stages[v, ITERS].items()}
         comp.reset()
-        frames[variant] = comp.compensate(image, iterations=ITERS, warm_start=False)
-        row = {"variant": variant, "size": f"{args.size[0]}x{args.size[1]}", "fixed_ms": fixed,
+        frames[v] = comp.compensate(image, iterations=ITERS, warm_start=False)
+        row = {"variant": v, "size": f"{args.size[0]}x{args.size[1]}", "fixed_ms": fixed,
                "per_iteration_ms": per_it, "stages_0it_ms": st0, "stages_8it_ms": stn,
-               "frame_8it_ms": 1e3 * statistics.median(tn), "repeats": args.repeats}
+               "frame_8it_ms": 1e3 * statistics.median(times[v, ITERS]),
+               "repeats": args.repeats}
         rows.append(row)
-        print(f"  {variant:12s} fixed {fixed:7.1f} ms  per iteration {per_it:7.1f} ms  "
+        print(f"  {v:12s} fixed {fixed:7.1f} ms  per iteration {per_it:7.1f} ms  "
               f"(8 it: {row['frame_8it_ms']:.1f} ms)  stages at 0 it: "
-              + ", ".join(f"{k} {v:.1f}" for k, v in st0.items()), flush=True)
-        del comp
+              + ", ".join(f"{k} {x:.1f}" for k, x in st0.items()), flush=True)
     base = rows[0]
     for r in rows:
         r["fixed_ratio"] = base["fixed_ms"] / r["fixed_ms"]
