@@ -137,9 +137,11 @@ void blur_adjoint_gpu(__global const float *restrict src, __global float *restri
  * Within a group the taps are blended per pixel, t(u) = sum_s w_s * psi_s(u) (4 vector FMAs with
  * broadcast taps), then applied to every channel: one pass over the K*K taps per group.
  *
- * blur_forward_cpu(src, dst, psfs, goff, gids, gw, H, W, NCH)
+ *   gsup int32 (G), asup int32 (GA): per chunk / column-block group, the widest support
+ *   half-width of its PSFs (<= RADIUS): taps beyond it are zero and are skipped.
+ * blur_forward_cpu(src, dst, psfs, goff, gids, gw, gsup, H, W, NCH)
  *   global size (ceil(NCH / LX) * LX, ceil(H / LY) * LY), local (LX, LY): one chunk per item.
- * blur_adjoint_cpu(src, dst, psfs, goff, gids, gw, agoff, agids, arows, H, W, NCH, NBY)
+ * blur_adjoint_cpu(src, dst, psfs, goff, gids, gw, agoff, agids, arows, asup, H, W, NCH, NBY)
  *   global size (ceil(NCH / LX) * LX, ceil(NBY / LY) * LY), NBY = ceil(H / ROWS_COL): one
  *   column block of ROWS_COL rows x 16 pixels per item. The adjoint at y needs the kernels of
  *   y's neighbours, A(y) = sum_u [sum_s W_s(y+u) psi_s(u)] r(y+u), so the host also lists per
@@ -235,7 +237,7 @@ __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void blur_forward_cpu(__global const float *restrict src, __global float *restrict dst,
                       __global const float *restrict psfs, __global const int *restrict goff,
                       __global const int4 *restrict gids, __global const float *restrict gw,
-                      const int H, const int W, const int NCH)
+                      __global const int *restrict gsup, const int H, const int W, const int NCH)
 {
     const int cx = get_global_id(0), y = get_global_id(1);
     if (cx >= NCH || y >= H) return;
@@ -246,9 +248,9 @@ void blur_forward_cpu(__global const float *restrict src, __global float *restri
     float16 acc[2][CHANNELS];
     #pragma unroll
     for (int c = 0; c < CHANNELS; ++c) acc[0][c] = acc[1][c] = (float16)(0.0f);
-    const int ylo = max(y - RADIUS, 0), yhi = min(y + RADIUS, H - 1);
-
     for (int g = goff[y * NCH + cx]; g < goff[y * NCH + cx + 1]; ++g) {
+        const int sg = gsup[g];                      /* taps beyond sg are zero */
+        const int ylo = max(y - sg, 0), yhi = min(y + sg, H - 1);
         const int4 id = max(gids[g], (int4)(0));     /* empty slots (-1) carry weight 0 */
         __global const float *p0 = psfs + id.s0 * KK, *p1 = psfs + id.s1 * KK;
         __global const float *p2 = psfs + id.s2 * KK, *p3 = psfs + id.s3 * KK;
@@ -262,6 +264,7 @@ void blur_forward_cpu(__global const float *restrict src, __global float *restri
             const int trow = (RADIUS + y - yr) * K + RADIUS;
             #pragma unroll
             for (int u = -RADIUS; u <= RADIUS; ++u) {
+                if (u < -sg || u > sg) continue;
                 const int t = trow + u;
                 /* k_x(u, v) for the 16 pixels: the blend of this group's PSFs */
                 const float16 kx = w0 * p0[t] + w1 * p1[t] + w2 * p2[t] + w3 * p3[t];
@@ -335,6 +338,7 @@ inline void weight_segment(float16 Wv[4][NV], const int4 e, const int yr, const 
             const int slot = yr & (RING - 1);                                              \
             _Pragma("unroll")                                                              \
             for (int u = -RADIUS; u <= RADIUS; ++u) {                                      \
+                if (u < -sg || u > sg) continue;                        /* zero taps */    \
                 float16 rv[CHANNELS];                                   /* r(x + u) */     \
                 _Pragma("unroll")                                                          \
                 for (int c = 0; c < CHANNELS; ++c) rv[c] = SEGV(Vr[slot][c], HALO + u);    \
@@ -344,6 +348,7 @@ inline void weight_segment(float16 Wv[4][NV], const int4 e, const int yr, const 
                 const float16 v3 = SEGV(Wr[slot][3], HALO + u);                            \
                 _Pragma("unroll")                                                          \
                 for (int i = (ILO); i <= (IHI); ++i) {                                     \
+                    if (abs((J) - RADIUS - i) > sg) continue;    /* |v| beyond the support */ \
                     const int t = ((J) - i) * K + RADIUS + u;     /* v = J - R - i */ \
                     const float16 kx = v0 * p0[t] + v1 * p1[t] + v2 * p2[t] + v3 * p3[t];   \
                     _Pragma("unroll")                                                      \
@@ -358,7 +363,7 @@ void blur_adjoint_cpu(__global const float *restrict src, __global float *restri
                       __global const float *restrict psfs, __global const int *restrict goff,
                       __global const int4 *restrict gids, __global const float *restrict gw,
                       __global const int *restrict agoff, __global const int4 *restrict agids,
-                      __global const int2 *restrict arows,
+                      __global const int2 *restrict arows, __global const int *restrict asup,
                       const int H, const int W, const int NCH, const int NBY)
 {
     const int cx = get_global_id(0), by = get_global_id(1);
@@ -382,9 +387,10 @@ void blur_adjoint_cpu(__global const float *restrict src, __global float *restri
         __global const float *p2 = psfs + ec.s2 * KK, *p3 = psfs + ec.s3 * KK;
         /* input rows where the group's PSFs have weight in this column's reach */
         const int rlo = max(arows[a].x, 0), rhi = min(arows[a].y, H - 1);
+        const int sg = asup[a];                      /* taps beyond sg are zero */
         int next = rlo;                              /* next input row to bring into the ring */
         for (int y0 = Y0; y0 < Y1; y0 += ROWS_ADJ) {
-            const int ylo = max(y0 - RADIUS, rlo), yhi = min(y0 + ROWS_ADJ - 1 + RADIUS, rhi);
+            const int ylo = max(y0 - sg, rlo), yhi = min(y0 + ROWS_ADJ - 1 + sg, rhi);
             if (accumulate && ylo > yhi) continue;   /* nothing of this group reaches here */
             for (next = max(next, ylo); next <= yhi; ++next) {
                 const int slot = next & (RING - 1);

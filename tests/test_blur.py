@@ -39,7 +39,23 @@ CASES = [
     ("238x318-r5-bilinear-C3", 238, 318, 11, None, 3),  # the usual case: one group per chunk
     ("45x61-k11-random-C1", 45, 61, 11, 5, 1),          # not a multiple of chunk or rows
     ("37x50-k19-random-C3", 37, 50, 19, 4, 3),          # radius 9 > 8: wider row segments
+    # supports 0 ... 6 of 7 (zero-padded, as the oracle's): the size is cut to the widest and
+    # each group loops over its own support only
+    ("61x83-k15-mixed-support-C3", 61, 83, 15, 9, 3),
 ]
+
+
+def mixed_support(psfs, seed):
+    """Each PSF zeroed outside a random centred window (half-widths 0 ... k // 2 - 1),
+    renormalised: the zero padding of a field of different blur sizes."""
+    rng = np.random.default_rng(seed)
+    n, k = psfs.shape[:2]
+    r = k // 2
+    ring = np.maximum.outer(np.abs(np.arange(k) - r), np.abs(np.arange(k) - r))
+    sup = rng.integers(0, r, n)
+    sup[0], sup[-1] = 0, r - 1
+    out = np.where(ring[None] <= sup[:, None, None], psfs, 0.0).astype(np.float32)
+    return out / out.sum(axis=(1, 2), keepdims=True), sup
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[c[0] for c in CASES])
@@ -49,6 +65,8 @@ def case(request):
         psfs, idx, wts = synthetic_field(w, h, k // 2)
     else:
         psfs, idx, wts = random_field(h, w, k, n, seed=k * 1000 + h)
+    if "mixed" in name:
+        psfs, _ = mixed_support(psfs, seed=h)
     rng = np.random.default_rng(h + w)
     img = rng.random((c, h, w)).astype(np.float32)
     return {"psfs": psfs, "idx": idx, "wts": wts, "img": img,
@@ -256,3 +274,25 @@ def test_field_must_cover_the_image():
     psfs, idx, wts = synthetic_field(40, 30, 2)
     with pytest.raises(InputError, match="40x30"):
         blur_adjoint(np.zeros((3, 31, 40), np.float32), psfs, idx, wts)
+
+
+def test_support_and_trim():
+    """psf_support: exact support at energy 1, smaller windows below; trim_psfs keeps unit sums,
+    cuts to the widest support, and at energy 1 changes nothing but the padding."""
+    from rtdefocus.reference.blur import psf_support, trim_psfs
+
+    psfs, _, _ = random_field(4, 4, 15, 9, seed=3)
+    psfs, sup = mixed_support(psfs, seed=5)
+    assert np.array_equal(psf_support(psfs), sup)
+    trimmed = trim_psfs(psfs, 1.0)
+    r, r2 = 7, int(sup.max())
+    assert trimmed.shape == (9, 2 * r2 + 1, 2 * r2 + 1)
+    np.testing.assert_array_equal(trimmed, psfs[:, r - r2:r + r2 + 1, r - r2:r + r2 + 1])
+    pill = np.stack([synthetic_field(32, 32, 6)[0][i] for i in (0, -1)])
+    s999 = psf_support(pill, 0.999)
+    assert np.all(s999 <= psf_support(pill)) and np.all(s999 >= 1)
+    t = trim_psfs(pill, 0.9)
+    np.testing.assert_allclose(t.sum((1, 2)), 1.0, atol=1e-6)
+    assert t.shape[1] <= pill.shape[1]
+    with pytest.raises(InputError):
+        psf_support(pill, 0.0)

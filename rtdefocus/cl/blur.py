@@ -23,7 +23,7 @@ import logging
 import numpy as np
 
 from ..errors import DeviceError, InputError
-from ..reference.blur import check_field
+from ..reference.blur import check_field, psf_support
 
 log = logging.getLogger(__name__)
 
@@ -58,10 +58,16 @@ class ClBlur:
     ----------
     shape : tuple
         ``(C, H, W)`` of the images :meth:`forward` and :meth:`adjoint` take.
-    psfs : (N, k, k) float32
-        The PSFs on the host, as checked.
+    psfs : (N, k', k') float32
+        The PSFs on the host, as checked and cut to the widest support (zero taps only).
+    support : (N,) int32
+        Each PSF's exact support half-width (:func:`~rtdefocus.reference.blur.psf_support`).
     variant : str
     """
+
+    #: Skip the zero taps beyond each PSF's support (False: every tap of the k x k window, as
+    #: before; ``tools/bench_video.py`` compares both in one run).
+    use_support = True
 
     def __init__(self, runtime, psfs: np.ndarray, idx: np.ndarray, wts: np.ndarray,
                  channels: int = 3, variant: str | None = None):
@@ -70,6 +76,17 @@ class ClBlur:
         import pyopencl.array as cla
 
         psfs, idx, wts = check_field(psfs, idx, wts)
+        # Only the taps inside the PSFs' support cost time: cut the common size to the widest
+        # support (zero taps only: the same operator), and the CPU variant loops over each
+        # group's own support (the blurs of a corner range from r ~ 1.5 to 6 px).
+        sup = psf_support(psfs, 1.0)
+        if not self.use_support:                      # benchmarks: the whole k x k window
+            sup = np.full(len(psfs), psfs.shape[1] // 2, np.int32)
+        # (radius >= 1: the CPU adjoint's row prologue and epilogue must not overlap)
+        r0 = psfs.shape[1] // 2
+        r1 = min(r0, max(int(sup.max()), 1))
+        psfs = np.ascontiguousarray(psfs[:, r0 - r1:r0 + r1 + 1, r0 - r1:r0 + r1 + 1])
+        self.support = sup
         if channels not in (1, 3):
             raise InputError(f"channels must be 1 or 3; got {channels}.")
         if variant is None:
@@ -155,7 +172,13 @@ class ClBlur:
         prg_f = self.runtime.program("blur.cl", {**defines, "LX": lx_f, "LY": ly_f})
         prg_a = self.runtime.program("blur.cl", {**defines, "LX": lx_a, "LY": ly_a})
         self._bufs = [cla.to_device(q, a) for a in (goff, gids, gw, agoff, agids, arows)]
-        b_goff, b_gids, b_gw, b_agoff, b_agids, b_arows = (b.data for b in self._bufs)
+        # per group, the widest support of its PSFs (empty slots, -1, count as 0)
+        sup = np.append(self.support, 0).astype(np.int32)
+        gsup = sup[gids].max(1).astype(np.int32)
+        asup = sup[agids].max(1).astype(np.int32)
+        self._bufs += [cla.to_device(q, gsup), cla.to_device(q, asup)]
+        b_goff, b_gids, b_gw, b_agoff, b_agids, b_arows, b_gsup, b_asup = (
+            b.data for b in self._bufs)
         gl_f = (-(-nch // lx_f) * lx_f, -(-h // ly_f) * ly_f)
         gl_a = (-(-nch // lx_a) * lx_a, -(-nby // ly_a) * ly_a)
         k_f = self._cl.Kernel(prg_f, "blur_forward_cpu")
@@ -167,11 +190,12 @@ class ClBlur:
 
         def run_fwd(src, dst, wait_for):
             return k_f(q, gl_f, (lx_f, ly_f), src.data, dst.data, self._psfs.data, b_goff,
-                       b_gids, b_gw, self._h, self._w, i32(nch), wait_for=wait_for)
+                       b_gids, b_gw, b_gsup, self._h, self._w, i32(nch), wait_for=wait_for)
 
         def run_adj(src, dst, wait_for):
             return k_a(q, gl_a, (lx_a, ly_a), src.data, dst.data, self._psfs.data, b_goff,
-                       b_gids, b_gw, b_agoff, b_agids, b_arows, self._h, self._w, i32(nch),
+                       b_gids, b_gw, b_agoff, b_agids, b_arows, b_asup, self._h, self._w,
+                       i32(nch),
                        i32(nby), wait_for=wait_for)
 
         self._run_fwd, self._run_adj = run_fwd, run_adj

@@ -27,8 +27,74 @@ from ..errors import InputError
 
 __all__ = [
     "blur_forward", "blur_adjoint", "blur_forward_filter2d", "blur_adjoint_filter2d",
-    "check_field", "weight_maps", "pillbox_psf", "synthetic_field",
+    "check_field", "weight_maps", "pillbox_psf", "synthetic_field", "psf_support", "trim_psfs",
 ]
+
+
+def psf_support(psfs: np.ndarray, energy: float = 1.0) -> np.ndarray:
+    """Half-width of each PSF's support: the smallest ``s`` whose centred ``(2s+1)²`` window
+    holds at least ``energy`` of the PSF's absolute sum.
+
+    Parameters
+    ----------
+    psfs : (N, k, k), k odd
+    energy : in (0, 1]; 1 gives the exact support (the smallest window outside which every tap
+        is zero), so a blur restricted to it is the same operator.
+
+    Returns
+    -------
+    (N,) int32 in ``[0, k // 2]``
+    """
+    psfs = np.abs(np.asarray(psfs, dtype=np.float64))
+    if psfs.ndim != 3 or psfs.shape[1] != psfs.shape[2] or psfs.shape[1] % 2 != 1:
+        raise InputError(f"psfs must be (N, k, k) with k odd; got shape {psfs.shape}")
+    if not 0.0 < energy <= 1.0:
+        raise InputError(f"energy must be in (0, 1]; got {energy}")
+    n, k = psfs.shape[:2]
+    r = k // 2
+    # distance of each tap from the centre in the max norm: tap (i, j) is inside window s iff
+    # its ring <= s
+    ring = np.maximum.outer(np.abs(np.arange(k) - r), np.abs(np.arange(k) - r))
+    per_ring = np.stack([psfs[:, ring == s].sum(-1) for s in range(r + 1)], axis=1)  # (N, r+1)
+    total = per_ring.sum(1, keepdims=True)
+    if energy >= 1.0:
+        nonzero = per_ring > 0
+        sup = np.where(nonzero.any(1), r - np.argmax(nonzero[:, ::-1], axis=1), 0)
+    else:
+        inside = np.cumsum(per_ring, axis=1) >= energy * total - 1e-12 * total
+        sup = np.argmax(inside, axis=1)
+    return sup.astype(np.int32)
+
+
+def trim_psfs(psfs: np.ndarray, energy: float = 0.999) -> np.ndarray:
+    """The PSFs cut to their energy support (:func:`psf_support`) and renormalised to unit sum,
+    in the smallest common odd size.
+
+    With ``energy=1`` the result is the same operator in a tighter array (only zero taps go).
+    Below 1 the faint halo beyond each PSF's window is dropped: fewer taps per pixel in every
+    blur, at a change of the operator measured by ``tools/bench_video.py`` (section ``trim``).
+
+    Parameters
+    ----------
+    psfs : (N, k, k) float, k odd, unit sum
+    energy : in (0, 1]
+
+    Returns
+    -------
+    (N, k', k') float32, k' = 2 · max(support) + 1 <= k
+    """
+    psfs = np.asarray(psfs, dtype=np.float32)
+    sup = psf_support(psfs, energy)
+    r, r2 = psfs.shape[1] // 2, int(sup.max())
+    out = psfs[:, r - r2:r + r2 + 1, r - r2:r + r2 + 1].copy()
+    if energy < 1.0:
+        ring = np.maximum.outer(np.abs(np.arange(2 * r2 + 1) - r2),
+                                np.abs(np.arange(2 * r2 + 1) - r2))
+        out[ring[None] > sup[:, None, None]] = 0.0
+        sums = out.sum((1, 2), keepdims=True, dtype=np.float64)
+        sums[sums == 0] = 1.0
+        out = (out / sums).astype(np.float32)
+    return np.ascontiguousarray(out)
 
 
 def check_field(psfs: np.ndarray, idx: np.ndarray, wts: np.ndarray,

@@ -1,0 +1,81 @@
+"""`rtdefocus eval --video`: the moving clip, and a quick run through the command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rtdefocus.eval_video import QUICK_SEGMENTS, Segment, make_clip, segment_summary
+
+
+def _photos():
+    rng = np.random.default_rng(0)
+    return {n: rng.integers(0, 256, (90 + 10 * i, 120, 3), dtype=np.uint8)
+            for i, n in enumerate(("a", "b", "c"))}
+
+
+def test_clip_segments_and_motion():
+    """Frame count and size per segment; a still repeats its frame; a pan by p px/frame moves
+    the picture by p px (found by phase correlation); the cut changes the picture."""
+    import cv2
+
+    segs = (Segment("still", "still", 3), Segment("pan", "pan", 3, 8.0), Segment("cut", "cut", 2),
+            Segment("zoom", "zoom", 2, 0.02), Segment("fade", "fade", 2))
+    clip = make_clip((160, 120), segs, photos=_photos())
+    assert [s for s, _ in clip] == ["still"] * 3 + ["pan"] * 3 + ["cut"] * 2 + ["zoom"] * 2 + \
+        ["fade"] * 2
+    assert all(f.shape == (120, 160, 3) and f.dtype == np.uint8 for _, f in clip)
+    assert np.array_equal(clip[0][1], clip[2][1])
+    a, b = (clip[i][1][..., 1].astype(np.float32) for i in (3, 4))
+    (dx, dy), _ = cv2.phaseCorrelate(a, b)
+    assert abs(abs(dx) - 8.0 * 160 / 800) < 0.3 and abs(dy) < 0.3
+    assert np.abs(clip[6][1].astype(int) - clip[5][1].astype(int)).mean() > 20      # the cut
+    assert np.array_equal(clip[6][1], clip[7][1])                                     # held
+    assert not np.array_equal(clip[-1][1], clip[-2][1])                               # the fade
+
+
+def test_recovery_after_cut():
+    """Frames to recover: from the first frame on which the mode stays at least as good as the
+    1-iteration cold start."""
+    segs = (Segment("cut", "cut", 4),)
+    gains = {"cold-1": [1.0, 1.0, 1.0, 1.0], "warm-1": [-5.0, 0.5, 1.2, 1.5],
+             "offline": [3.0, 3.0, 3.0, 3.0]}
+    records = [{"segment": "cut", "gain": {m: g[i] for m, g in gains.items()},
+                "iterations": {m: 1 for m in gains}, "ms": {m: 1.0 for m in gains}}
+               for i in range(4)]
+    summ = segment_summary(records, segs, list(gains))
+    assert summ["warm-1"]["cut_recovery_frames"] == 2
+    assert summ["cold-1"]["cut_recovery_frames"] == 0
+    assert summ["warm-1"]["share"]["cut"] == pytest.approx(np.mean(gains["warm-1"]) / 3.0)
+
+
+@pytest.mark.slow
+def test_eval_video_quick(tmp_path):
+    """`rtdefocus eval --video --quick` writes the table, JSON and plot; the offline ceiling
+    beats geometry only on every segment, and a cold start's gain does not depend on motion."""
+    from rtdefocus import cli
+
+    code = cli.main(["-q", "eval", "--video", "--quick", "-o", str(tmp_path), "--budgets", "1",
+                     "--fps", "30"])
+    assert code == 0
+    for name in ("video.md", "video.json", "video.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    result = json.loads((tmp_path / "video.json").read_text())
+    segments = [s.name for s in QUICK_SEGMENTS]
+    assert result["segments"] == segments
+    assert result["modes"] == ["warm-1", "cold-1", "fps-30", "offline"]
+    assert len(result["frames"]) == sum(s.frames for s in QUICK_SEGMENTS)
+    md = (tmp_path / "video.md").read_text()
+    table = [line for line in md.splitlines() if line.startswith("|")]
+    assert table[0] == "| mode | " + " | ".join(segments) + " | still @1 s | cut | it | ms |"
+    assert len(table) == 2 + len(result["modes"])
+    assert all(line.count("|") == len(segments) + 6 for line in table)
+    summ = result["summary"]
+    for seg in segments:
+        assert summ["offline"]["gain"][seg] > 0.5, seg
+        assert summ["offline"]["gain"][seg] > summ["cold-1"]["gain"][seg] > 0, seg
+    assert summ["cold-1"]["cut_recovery_frames"] == 0
+    for f in result["frames"]:
+        assert f["iterations"]["fps-30"] >= 1
