@@ -188,3 +188,16 @@ def test_opencl_warm_start_matches_numpy(calib, pictures, cl_runtime):
     d_cl, s_cl, _ = _run(calib, frames, 2, True, backend="opencl")
     assert s_np == s_cl
     np.testing.assert_allclose(d_cl, d_np, rtol=2e-3)
+
+
+def test_psf_energy_trims_the_kernels_and_keeps_the_result(calib, pictures):
+    """``psf_energy`` cuts the kernels' faint halo: a smaller window, nearly the same frame."""
+    frame = clip(pictures)[0][0]
+    full = rd.Compensator(calib, backend="numpy")
+    trimmed = rd.Compensator(calib, backend="numpy", psf_energy=0.99)
+    assert trimmed._solver.ops.psfs.shape[-1] < full._solver.ops.psfs.shape[-1]
+    a = full.compensate_warped(frame, iterations=10).astype(int)
+    b = trimmed.compensate_warped(frame, iterations=10).astype(int)
+    assert np.abs(a - b).mean() < 1.0, np.abs(a - b).mean()
+    with pytest.raises(rd.InputError, match="psf_energy"):
+        rd.Compensator(calib, psf_energy=0.5)

@@ -105,6 +105,9 @@ def _add_play(sub):
     p.add_argument("--flatten", nargs="?", const="auto", type=_brightness, metavar="BRIGHTNESS",
                    help="show the input as on a uniform white wall (the calibration's albedo and "
                    "ambient); optional brightness, camera linear light (default auto)")
+    p.add_argument("--psf-energy", type=float, metavar="E",
+                   help="cut each kernel to the window holding this share of its energy, e.g. "
+                   "0.999: faster solves, a slightly different blur model (default: as calibrated)")
     p.add_argument("--iterations", type=int,
                    help="solver iterations per frame (default: adaptive in the window, the "
                    "Compensator's budget for files, until converged for slides)")
@@ -123,7 +126,8 @@ def cmd_play(args) -> int:
 
     calib = Calibration.load(args.calibration)
     flat = {} if args.flatten is None else {"surface": "flatten", "brightness": args.flatten}
-    comp = Compensator(calib, backend=args.backend, method=args.method, **flat)
+    comp = Compensator(calib, backend=args.backend, method=args.method,
+                       psf_energy=args.psf_energy, **flat)
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
                      camera_fps=args.camera_fps) as source:

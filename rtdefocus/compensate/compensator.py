@@ -27,6 +27,7 @@ from ..checks import check_choice, check_int, check_real
 from ..cl import runtime as cl_runtime
 from ..errors import CalibrationFileError, DeviceError, InputError, InputTypeError
 from ..gl.warp import warp_image
+from ..reference.blur import trim_psfs
 from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
 from ..reference.metric import DEFAULT_WEIGHTS, Metric
 from .backends import make_solve_ops
@@ -92,6 +93,10 @@ class Compensator:
     brightness : "auto" | float
         ``surface="flatten"`` only: the global brightness b of a white input (camera linear
         light); "auto" keeps clipping on a white input to a small share of the wall.
+    psf_energy : float, optional
+        Cut each kernel to the smallest window holding this share of its energy (e.g. 0.999)
+        before solving: fewer taps per blur, a slightly different operator. Default: the
+        kernels as calibrated (only their all-zero borders are skipped).
 
     Attributes
     ----------
@@ -109,12 +114,16 @@ class Compensator:
                  weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS,
                  headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
                  wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None,
-                 surface: str = "keep", brightness: str | float = "auto"):
+                 surface: str = "keep", brightness: str | float = "auto",
+                 psf_energy: float | None = None):
         _check_args(calib, method=method, solver=solver, backend=backend,
                     iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
                     wiener_nsr=wiener_nsr, blur_variant=blur_variant)
         if surface not in SURFACES:
             raise InputError(f"surface must be one of {SURFACES}; got {surface!r}")
+        if psf_energy is not None and not 0.9 <= float(psf_energy) <= 1.0:
+            raise InputError(f"psf_energy must be in [0.9, 1] (the share of each kernel's energy "
+                             f"kept, e.g. 0.999) or None; got {psf_energy!r}")
         if method != "none" and not calib.has_psf:
             raise CalibrationFileError(
                 f"method {method!r} needs the calibration's PSF section (the defocus kernels), "
@@ -150,7 +159,10 @@ class Compensator:
             metric = Metric.ycbcr(self.weights) if method == "ycbcr" else Metric.rgb()
             # NumPy: the filter2D form of F (exactly the same operator, several times faster).
             scale = None if self._surface is None else self._surface.scale
-            ops = make_solve_ops(self.backend, calib.psfs, calib.pix_idx, calib.pix_wts, metric,
+            # psf_energy: each kernel cut to the window holding that share of its energy (fewer
+            # taps per blur; measured kernels carry a faint noisy halo that costs time only).
+            psfs = calib.psfs if psf_energy is None else trim_psfs(calib.psfs, float(psf_energy))
+            ops = make_solve_ops(self.backend, psfs, calib.pix_idx, calib.pix_wts, metric,
                                  blur="filter2d", blur_variant=blur_variant, scale=scale)
             self._solver = Solver(ops, solver=solver)
 
