@@ -3,7 +3,8 @@
  *
  *   min_P d(F P, I)  subject to 0 <= P <= 1,   grad d = 2 F^T q,  q = Q (F P - I)  (metric.cl)
  *
- *   pg_direction   s = -g on the free set (0 where P sits at a bound and -g points outward)
+ *   pg_direction   s = -g on the free set (0 where P sits at a bound and -g points outward);
+ *                  s = -pc g with PRECOND
  *   pg_step        P <- clamp(P + t s, 0, 1); delta = the step actually taken
  *   axpy           x <- x + a y   (moving back along the chord of a clamped step)
  *   fista_step     P_out = clamp(y - step (G + beta (G - G_prev)), 0, 1),  y = P + beta (P - P_prev)
@@ -20,13 +21,23 @@
  * partials: float32 (NQ, n_groups) as partials[k * n_groups + group].
  * decode_lut: one work-item per pixel; encode_lut: 16 pixels per work-item (see there).
  *
+ * PRECOND (0/1, default 0; surface="flatten", DESIGN.md §3): pg_direction and fista_step scale
+ * the gradient by a per-element diagonal preconditioner pc (float32 (3, H, W),
+ * rtdefocus.reference.ops.scale_preconditioner): s = -pc g, and pg_direction's partial becomes
+ * sum pc g^2 (= -<g, s>, what the exact line search needs); P_out = clamp(y - step pc g_y).
+ * Without it `pc` is never read (any buffer will do) and the arithmetic is unchanged.
+ *
  * Constants (-D): WG (a power of two within the device's work-group limit), ITEMS, VEC (16 or 1);
- * ENC_T, ENC_STEPS (encode_lut's table size and correction steps).
+ * PRECOND; ENC_T, ENC_STEPS (encode_lut's table size and correction steps).
  */
 #include "common.h"
 
 #if !defined(WG) || !defined(ITEMS) || !defined(VEC)
 #error "solver.cl needs -D WG, ITEMS and VEC"
+#endif
+
+#ifndef PRECOND
+#define PRECOND 0
 #endif
 
 #if VEC == 16
@@ -62,10 +73,12 @@ inline float vsum(const vecf v) { return v; }
 /* Element index of chunk j of this work-item. */
 #define CHUNK(j) (((size_t)get_group_id(0) * WG * ITEMS + (size_t)(j) * WG + get_local_id(0)) * VEC)
 
-/* s = -g where P may move that way, else 0.  partials[0] = sum s^2 (= -<g, s>). */
+/* s = -g (PRECOND: -pc g) where P may move that way, else 0.  partials[0] = -<g, s>
+ * (sum s^2 without PRECOND). */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void pg_direction(__global const float *restrict P, __global const float *restrict g,
-                  __global float *restrict s, __global float *restrict partials, const int n)
+                  __global float *restrict s, __global const float *restrict pc,
+                  __global float *restrict partials, const int n)
 {
     __local float4 scratch[WG];
     vecf acc = (vecf)(0.0f);
@@ -73,9 +86,16 @@ void pg_direction(__global const float *restrict P, __global const float *restri
         const size_t i = CHUNK(j);
         if (i >= (size_t)n) break;
         const vecf p = vld(P, i, n), gi = vld(g, i, n);
+#if PRECOND
+        const vecf si = select(-(vld(pc, i, n) * gi), (vecf)(0.0f),
+                               (p <= 0.0f && gi > 0.0f) || (p >= 1.0f && gi < 0.0f));
+        vst(s, i, n, si);
+        acc -= gi * si;
+#else
         const vecf si = select(-gi, (vecf)(0.0f), (p <= 0.0f && gi > 0.0f) || (p >= 1.0f && gi < 0.0f));
         vst(s, i, n, si);
         acc += si * si;
+#endif
     }
     store_partials(partials, wg_sum4(scratch, (float4)(vsum(acc), 0.0f, 0.0f, 0.0f), WG), 1);
 }
@@ -114,14 +134,14 @@ void axpy(__global float *restrict x, __global const float *restrict y, const fl
     }
 }
 
-/* P_out = clamp(y - step g_y, 0, 1) with y = P + beta (P - P_prev), g_y = G + beta (G - G_prev)
+/* P_out = clamp(y - step g_y, 0, 1) (PRECOND: step pc g_y) with y = P + beta (P - P_prev), g_y = G + beta (G - G_prev)
  * (P_prev and G_prev are not read when beta == 0; P_out distinct from the inputs).
  * partials: [0] sum (P_out - P)^2, [1] sum P_out^2. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void fista_step(__global const float *restrict P, __global const float *restrict P_prev,
                 __global const float *restrict G, __global const float *restrict G_prev,
-                const float beta, const float step, __global float *restrict P_out,
-                __global float *restrict partials, const int n)
+                const float beta, const float step, __global const float *restrict pc,
+                __global float *restrict P_out, __global float *restrict partials, const int n)
 {
     __local float4 scratch[WG];
     vecf a0 = (vecf)(0.0f), a1 = a0;
@@ -134,6 +154,9 @@ void fista_step(__global const float *restrict P, __global const float *restrict
             y += beta * (p - vld(P_prev, i, n));
             gy += beta * (g - vld(G_prev, i, n));
         }
+#if PRECOND
+        gy *= vld(pc, i, n);
+#endif
         const vecf pn = clamp(y - step * gy, 0.0f, 1.0f);
         vst(P_out, i, n, pn);
         const vecf d = pn - p;

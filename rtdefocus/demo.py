@@ -30,6 +30,11 @@ from .calib.geometry_diagnostics import geometry_diagnostics
 from .calib.psf import psf_diagnostics
 from .compensate import Compensator
 from .imageio import write_image
+from .panels import crop_box as _crop_box
+from .panels import fit_height as _fit_height
+from .panels import hstack as _hstack
+from .panels import label as _label
+from .panels import pad_to_width as _pad_to_width
 from .samples import demo_images
 from .scores import ImageScores, score_image
 
@@ -40,27 +45,6 @@ METHOD_LABELS = {"none": "geometry only", "ycbcr": "ours (YCbCr, Eq. 4)",
                  "rgb": "RGB least squares", "wiener": "Wiener pre-filter"}
 
 StepFn = Callable[[str], None]
-
-
-def _crop_box(calib, pad: int = 12) -> tuple[slice, slice]:
-    """Camera rows/cols around the lit area (so the pictures show the projection, not the room)."""
-    poly = np.asarray(calib.lit_polygon_cam)
-    wc, hc = calib.camera_size
-    x0, y0 = np.floor(poly.min(axis=0)).astype(int) - pad
-    x1, y1 = np.ceil(poly.max(axis=0)).astype(int) + pad
-    return slice(max(0, y0), min(hc, y1)), slice(max(0, x0), min(wc, x1))
-
-
-def _label(img: np.ndarray, text: str) -> np.ndarray:
-    bar = np.full((28, img.shape[1], 3), 255, np.uint8)
-    cv2.putText(bar, text, (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    return np.vstack([bar, img])
-
-
-def _fit_height(img: np.ndarray, h: int) -> np.ndarray:
-    w = max(1, round(img.shape[1] * h / img.shape[0]))
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if img.shape[0] > h
-                      else cv2.INTER_LINEAR)
 
 
 def _fold_zoom_box(calib, rect, reference: np.ndarray, size: int = 96) -> tuple[slice, slice]:
@@ -105,25 +89,6 @@ def side_by_side(calib, rect, views: dict[str, np.ndarray], input_rgb: np.ndarra
     return np.vstack([_pad_to_width(top, width), _pad_to_width(bottom, width)])
 
 
-def _hstack(panels: list[np.ndarray], gap: int = 6) -> np.ndarray:
-    h = max(p.shape[0] for p in panels)
-    out = []
-    for i, p in enumerate(panels):
-        if p.shape[0] < h:
-            p = np.vstack([p, np.full((h - p.shape[0], p.shape[1], 3), 255, np.uint8)])
-        out.append(p)
-        if i < len(panels) - 1:
-            out.append(np.full((h, gap, 3), 255, np.uint8))
-    return np.hstack(out)
-
-
-def _pad_to_width(img: np.ndarray, width: int) -> np.ndarray:
-    if img.shape[1] >= width:
-        return img
-    return np.hstack([img, np.full((img.shape[0], width - img.shape[1], 3), 255, np.uint8)])
-
-
-
 def table_markdown(rows: list[ImageScores], preset: str) -> str:
     """The demo table: PSNR/SSIM per method, and the paper's Table 1 edge counts."""
     methods = list(rows[0].psnr)
@@ -164,7 +129,8 @@ def table_markdown(rows: list[ImageScores], preset: str) -> str:
 def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
              methods: tuple[str, ...] = METHODS, images: dict[str, np.ndarray] | None = None,
              seed: int = 0, progress=None, step: StepFn | None = None,
-             headroom: tuple[float, float] = (0.1, 0.9), **procam_options) -> dict:
+             headroom: tuple[float, float] = (0.1, 0.9), surfaces: bool = False,
+             **procam_options) -> dict:
     """Run the demo and write its pictures and table into ``out_dir``.
 
     Parameters
@@ -176,6 +142,9 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     progress : calibration progress callback ``(stage, done, total)``.
     step : called with a short message before each long step (the CLI prints them).
     headroom : the text slide is also shown with this headroom (what it buys on clipped text).
+    surfaces : also the ``fabric`` preset: geometry only | defocus only | defocus + flatten |
+        sharp on a white wall, per photograph, and the uniformity figures
+        (:mod:`rtdefocus.demo_surfaces`; ``table.json`` gains ``surfaces``).
     **procam_options : passed to :class:`rtdefocus.sim.VirtualProCam` (e.g. smaller sizes).
 
     Returns
@@ -218,6 +187,15 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
         files.append(write_image(out / "text_headroom_side_by_side.png",
                                  side_by_side(calib, rect, shown, images["text"])))
     md = table_markdown(rows, preset)
+    surface_figures = None
+    if surfaces:
+        from .demo_surfaces import run_surfaces
+
+        photos = {n: im for n, im in images.items() if n != "text"} or images
+        say(f"fabric preset: keep vs flatten on {', '.join(photos)}")
+        more, md_s, surface_figures = run_surfaces(out, photos, seed=seed, **procam_options)
+        files += more
+        md += "\n" + md_s
     (out / "table.md").write_text(md)
     files.append(out / "table.md")
     result = {
@@ -228,6 +206,8 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
         "backend": next(iter(comps.values())).backend,
         "seconds": round(time.perf_counter() - t_start, 1),
     }
+    if surface_figures is not None:
+        result["surfaces"] = surface_figures
     (out / "table.json").write_text(json.dumps(result, indent=2, default=json_default))
     files.append(out / "table.json")
     result["files"] = [str(f) for f in files]

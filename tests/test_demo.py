@@ -55,3 +55,20 @@ def test_side_by_side_picture_has_all_panels(demo_result):
     # five panels (input + 4 camera views) on top, four zooms below: wide and not blank
     assert img.shape[1] > 4 * img.shape[0] / 2
     assert np.std(img) > 20
+
+
+def test_demo_surfaces_section(tmp_path):
+    """``--surfaces``: the fabric side by side per photograph and the uniformity rows."""
+    from rtdefocus.demo_surfaces import SURFACE_VIEWS, run_surfaces
+    from rtdefocus.samples import demo_images
+
+    img = demo_images()["chelsea"]
+    files, md, figures = run_surfaces(tmp_path, {"chelsea": img}, projector_size=(160, 120),
+                                      camera_size=(200, 150))
+    assert [f.name for f in files] == ["fabric_chelsea_side_by_side.png"]
+    assert (tmp_path / "fabric_chelsea_side_by_side.png").stat().st_size > 0
+    assert "| grey field: CoV (lower: more uniform) |" in md
+    assert "| chelsea: PSNR vs white wall (gain + offset) |" in md
+    labels = [label for label, _, _ in SURFACE_VIEWS]
+    assert set(figures["cov"]) == set(labels) and set(figures["psnr_white"]["chelsea"]) == set(labels)
+    assert figures["cov"]["defocus + flatten"] < figures["cov"]["defocus only"]

@@ -16,8 +16,10 @@ import logging
 import numpy as np
 
 from ..errors import InputError
+from ..reference.blur import check_field
 from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
+from ..reference.ops import scale_preconditioner
 from .blur import ClBlur
 
 log = logging.getLogger(__name__)
@@ -52,7 +54,9 @@ class ClSolveOps:
         Passed to :class:`ClBlur` (default: by device type).
     scale : (3, H, W) float32, optional
         Per-pixel scale S of the residual (``metric.cl`` with HAS_SCALE; the surface's albedo
-        when the compensation flattens it): d = d(S (F P − target)). None: no scale.
+        when the compensation flattens it): d = d(S (F P − target)). None: no scale. With a
+        scale the steps are preconditioned (``solver.cl`` PRECOND, the host array of
+        :func:`~rtdefocus.reference.ops.scale_preconditioner`, as in the NumPy twin).
 
     Attributes
     ----------
@@ -108,7 +112,8 @@ class ClSolveOps:
         self._prg_m = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
                                                     "LX": lx, "LY": ly})
         sdef = {"ITEMS": items, "VEC": vec, "ENC_T": ENC_T, "ENC_STEPS": ENC_STEPS}
-        self._prg_s = runtime.program("solver.cl", {"WG": wg, **sdef})
+        pdef = {} if scale is None else {"PRECOND": 1}
+        self._prg_s = runtime.program("solver.cl", {"WG": wg, **sdef, **pdef})
         self._wg, self._items = wg, items
         self._m_local = (lx, ly)
         self._m_global = (-(-nx // lx) * lx, -(-h // ly) * ly)
@@ -127,13 +132,18 @@ class ClSolveOps:
         self._sums_host = np.zeros(4, np.float32)
         self._codes = cla.zeros(self.queue, (h, w, 3), np.uint8)
         self.scale_max = 1.0
+        self.precond = None
+        self.lipschitz_factor = 1.0                 # with the preconditioner, as in NumpyOps
         self._scale = self._partials                # never read without HAS_SCALE
+        self._pc = self._partials                   # never read without PRECOND
         if scale is not None:
             scale = np.ascontiguousarray(scale, dtype=np.float32)
             if scale.shape != self.shape:
                 raise InputError(f"scale must be {self.shape} (3, H, W); got {scale.shape}")
             self._scale = cla.to_device(self.queue, scale)
             self.scale_max = float(scale.max())
+            self.precond = scale_preconditioner(scale, *check_field(psfs, idx, wts))
+            self._pc = cla.to_device(self.queue, self.precond)
         self._luts: dict = {}
         # Own kernel objects (cl.Kernel): kernel arguments are per-object state, and programs are
         # shared between instances through the runtime's cache.
@@ -210,7 +220,7 @@ class ClSolveOps:
     # ------------------------------------------------------------------ steps
     def pg_direction(self, P, g, s) -> float:
         self._k["pg_direction"](self.queue, self._e_global, (self._wg,), P.data, g.data, s.data,
-                                self._partials.data, np.int32(self.n))
+                                self._pc.data, self._partials.data, np.int32(self.n))
         return float(self._reduce(self._e_groups, 1)[0])
 
     def pg_step(self, P, s, t: float, delta) -> tuple[float, float, int]:
@@ -228,7 +238,8 @@ class ClSolveOps:
         """P_out = clamp(y − step g_y); returns (‖P_out − P‖², ‖P_out‖²), or NaNs without
         ``sums`` (no second reduction stage and no host synchronisation)."""
         self._k["fista_step"](self.queue, self._e_global, (self._wg,), P.data, P_prev.data, G.data,
-                              G_prev.data, np.float32(beta), np.float32(step), P_out.data,
+                              G_prev.data, np.float32(beta), np.float32(step), self._pc.data,
+                              P_out.data,
                               self._partials.data, np.int32(self.n))
         if not sums:
             return float("nan"), float("nan")

@@ -20,6 +20,9 @@ def _add_demo(sub):
     p.add_argument("--methods", default="ycbcr,rgb,wiener",
                    help="compensation methods compared with geometry only (default ycbcr,rgb,wiener)")
     p.add_argument("--seed", type=int, default=0, help="simulator noise seed (default 0)")
+    p.add_argument("--surfaces", action="store_true",
+                   help="also the coloured, textured 'fabric' walls: geometry only | defocus only "
+                        "| defocus + flatten | sharp on a white wall, and uniformity figures")
     p.set_defaults(func=cmd_demo)
 
 
@@ -32,7 +35,7 @@ def cmd_demo(args) -> int:
     t0 = time.perf_counter()
     with _Progress(args.quiet) as progress:
         result = run_demo(args.output, preset=args.scene, methods=methods, seed=args.seed,
-                          progress=progress, step=progress.step)
+                          progress=progress, step=progress.step, surfaces=args.surfaces)
     print()
     print(result["markdown"])
     print(f"backend: {result['backend']}; done in {time.perf_counter() - t0:.0f} s. Files:")

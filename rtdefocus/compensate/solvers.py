@@ -16,6 +16,12 @@ Two solvers behind one interface (:class:`Solver`), each on two backends with th
              extrapolated point is ``G_k + β (G_k − G_{k−1})`` with ``G = Fᵀ q`` at the iterates:
              two blurs per iteration (one forward, one adjoint).
 
+With a residual scale S (``surface="flatten"``: ``d(S (F P − T))``, DESIGN.md §3) the ops
+precondition both: ``s = −p ⊙ ∇d`` and ``P − (2/L) p ⊙ G`` with the diagonal
+``p = 1 / Fᵀ(S² ⊙ F 1)`` (:func:`rtdefocus.reference.ops.scale_preconditioner`), so that dark
+pixels of the wall converge as fast as bright ones and ``L`` stays the plain blur's; the exact
+line search uses ``−⟨∇d, s⟩ = 2 Σ p g²`` instead of ``2 ‖s‖²``.
+
 Backends: the solver is handed an ops object — :class:`rtdefocus.reference.ops.NumpyOps` (the
 reference) or :class:`rtdefocus.cl.solve.ClSolveOps` (OpenCL), with the same primitive
 operations (:mod:`rtdefocus.compensate.backends` builds one by name; this module imports
@@ -139,8 +145,9 @@ class Solver:
         self.backend = ops.backend
         self.shape = ops.shape
         # 5 % over the estimate: it is not a strict bound for a spatially varying F (see there).
-        # A residual scale S (ops.scale_max, surface="flatten") scales the Hessian by up to max S².
-        self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05 * ops.scale_max ** 2
+        # A residual scale S (surface="flatten") comes with a diagonal preconditioner that brings
+        # the Hessian back to the plain blur's (ops.lipschitz_factor = 1; NumpyOps.precond).
+        self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05 * ops.lipschitz_factor
         new = self.ops.new
         self.target = new()
         self.P, self._P_prev, self._P_alt = new(), new(), new()

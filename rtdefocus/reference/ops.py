@@ -22,11 +22,33 @@ from .blur import (
 from .lut import encode_lut, inverse_lut_tables
 from .metric import Metric, metric_field
 
-__all__ = ["NumpyOps"]
+__all__ = ["NumpyOps", "scale_preconditioner"]
 
 
 def _vdot(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.add.reduce(a * b, axis=None, dtype=np.float64))
+
+
+def scale_preconditioner(scale, psfs, idx, wts) -> np.ndarray:
+    """The diagonal preconditioner of a residual scaled by S: ``p = 1 / Fᵀ(S² ⊙ F 1)``.
+
+    ``Fᵀ S² F`` (the Hessian of ``‖S (F P − T)‖²``) has nonnegative entries and row sums
+    ``Fᵀ(S² ⊙ F 1)``; with ``D = diag(p)`` the matrix ``D Fᵀ S² F`` has unit row sums, so
+    ``D^½ Fᵀ S² F D^½`` (similar to it) has spectral norm ≤ 1. Steps ``P − t p ⊙ ∇d`` therefore
+    converge at keep's pace wherever S is dark, instead of ``1/S²`` times slower; where S is
+    locally constant ``p ≈ 1/S²`` and the preconditioned Hessian is keep's. The box projection
+    stays the per-element clamp (a diagonal metric). Both backends use this host array.
+    Floored at ``min S²`` (pixels the blur barely reaches: the frame's edges).
+
+    Returns
+    -------
+    (3, H, W) float32
+    """
+    scale = np.asarray(scale, dtype=np.float32)
+    s2 = scale.astype(np.float64) ** 2
+    f1 = blur_forward_filter2d(np.ones(scale.shape, np.float32), psfs, idx, wts)
+    w = blur_adjoint_filter2d((s2 * f1).astype(np.float32), psfs, idx, wts).astype(np.float64)
+    return (1.0 / np.maximum(w, s2.min())).astype(np.float32)
 
 
 class NumpyOps:
@@ -42,13 +64,18 @@ class NumpyOps:
         Per-pixel scale S of every residual (the surface's albedo when the compensation flattens
         it, DESIGN.md §3): the distance is ``d(S (F P − target))`` and the field ``q = S Q S e``,
         so that ``2 Fᵀ q`` stays its gradient. None: no scale (``kernels/metric.cl`` HAS_SCALE).
+        With a scale the steps are preconditioned by :func:`scale_preconditioner` (``precond``;
+        ``kernels/solver.cl`` PRECOND).
 
     Attributes
     ----------
     psfs : (N, k, k) float32, the field's PSFs (the solver's step size is estimated from them).
     metric : Metric
     shape : ``(3, H, W)`` of every image.
-    scale_max : the largest scale (1.0 without one): the Hessian grows with its square.
+    scale_max : the largest scale (1.0 without one).
+    precond : (3, H, W) float32 or None, the diagonal preconditioner p of the steps (with a scale).
+    lipschitz_factor : the solver's Lipschitz estimate for the plain blur times this one: 1.0
+        without a scale and with the preconditioner (see :func:`scale_preconditioner`).
     """
 
     backend = "numpy"
@@ -65,11 +92,14 @@ class NumpyOps:
         self.shape = (3, h, w)
         self.scale = None
         self.scale_max = 1.0
+        self.precond = None
+        self.lipschitz_factor = 1.0
         if scale is not None:
             self.scale = np.ascontiguousarray(scale, dtype=np.float32)
             if self.scale.shape != self.shape:
                 raise InputError(f"scale must be {self.shape} (3, H, W); got {self.scale.shape}")
             self.scale_max = float(self.scale.max())
+            self.precond = scale_preconditioner(self.scale, self.psfs, self.idx, self.wts)
         self._enc_key: bytes | None = None      # the LUT whose encoder tables are cached
         self._enc_tables = None
 
@@ -121,9 +151,13 @@ class NumpyOps:
 
     def pg_direction(self, P, g, s) -> float:
         blocked = ((P <= 0) & (g > 0)) | ((P >= 1) & (g < 0))
-        np.negative(g, out=s)
+        if self.precond is None:
+            np.negative(g, out=s)
+            s[blocked] = 0.0
+            return _vdot(s, s)
+        np.multiply(g, -self.precond, out=s)         # s = −p g; returns −⟨g, s⟩ = Σ p g²
         s[blocked] = 0.0
-        return _vdot(s, s)
+        return -_vdot(g, s)
 
     def pg_step(self, P, s, t, delta) -> tuple[float, float, int]:
         moved = P + np.float32(t) * s
@@ -140,6 +174,8 @@ class NumpyOps:
         if beta != 0.0:
             y = P + np.float32(beta) * (P - P_prev)
             gy = G + np.float32(beta) * (G - G_prev)
+        if self.precond is not None:
+            gy = gy * self.precond
         np.clip(y - np.float32(step) * gy, 0.0, 1.0, out=P_out)
         if not sums:
             return float("nan"), float("nan")
