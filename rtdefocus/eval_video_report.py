@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RtDefocusError
+from .evalreport import new_figure
 
 __all__ = ["video_markdown", "plot_video", "MODE_LABELS"]
 
@@ -92,15 +92,9 @@ def _load(m: dict) -> str:
 
 def plot_video(result: dict, path) -> Path:
     """Per-frame PSNR gain over geometry only for every mode, segments shaded; PNG."""
-    try:  # matplotlib: an optional extra (rtdefocus[demo]), slow to import; loaded on use
-        from matplotlib.figure import Figure
-    except ImportError as exc:
-        raise RtDefocusError("the video plot needs matplotlib: pip install 'rtdefocus[demo]' "
-                             "(or matplotlib), or pass plot=False / --no-plot") from exc
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    fig = new_figure("the video plot", (13, 6), path, ", or pass plot=False / --no-plot")
     frames = result["frames"]
-    fig = Figure(figsize=(13, 6), layout="constrained")
     ax = fig.subplots()
     x = np.arange(len(frames))
     styles = {"warm": "-", "cold": ":", "fps": "--"}

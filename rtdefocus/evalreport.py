@@ -19,6 +19,20 @@ LAYOUT_LABELS = {
 METHOD_SHORT = {"none": "geometry only", "ycbcr": "ours", "rgb": "RGB LS", "wiener": "Wiener"}
 
 
+def new_figure(what: str, figsize: tuple[float, float], path: Path, hint: str = ""):
+    """A matplotlib Figure for a plot written to ``path`` (its folder is created), or an error
+    naming the extra to install: matplotlib is optional (rtdefocus[demo]) and slow to import,
+    so it loads here, on use. A Figure without pyplot renders with Agg and leaves the process's
+    backend alone."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise RtDefocusError(f"{what} needs matplotlib: pip install 'rtdefocus[demo]' (or "
+                             f"matplotlib){hint}") from exc
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return Figure(figsize=figsize, layout="constrained")
+
+
 def plot_convergence(curves: list[dict], path, title: str = "") -> Path:
     """Write the 4-panel convergence figure (distance and PSNR vs iteration and vs time) as PNG.
 
@@ -32,15 +46,8 @@ def plot_convergence(curves: list[dict], path, title: str = "") -> Path:
     -------
     pathlib.Path of the file written.
     """
-    try:  # matplotlib: an optional extra (rtdefocus[demo]), slow to import; loaded on use
-        from matplotlib.figure import Figure
-    except ImportError as exc:
-        raise RtDefocusError("the convergence plot needs matplotlib: pip install "
-                             "'rtdefocus[demo]' (or matplotlib)") from exc
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # A Figure without pyplot renders with Agg and leaves the process's backend alone.
-    fig = Figure(figsize=(12, 8.5), layout="constrained")
+    fig = new_figure("the convergence plot", (12, 8.5), path)
     (ax_di, ax_dt), (ax_pi, ax_pt) = fig.subplots(2, 2)
     colours = {"fista": "tab:blue", "pg": "tab:orange"}
     # The backends compute the same iterates: NumPy gets open square markers so that its points
