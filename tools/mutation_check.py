@@ -39,7 +39,7 @@ MUTATIONS = [
     Mutation("drop-response-lut", "rtdefocus/compensate/compensator.py",
              "self._lut = np.asarray(calib.lut, dtype=np.float32)",
              "self._lut = np.tile(np.linspace(0, 1, 256, dtype=np.float32), (3, 1))",
-             ("tests/test_compensate.py", "tests/test_demo.py", "tests/test_stream.py")),
+             ("tests/test_heldout.py", "tests/test_compensate.py", "tests/test_demo.py")),
     Mutation("flip-psf", "rtdefocus/calib/psf/dots.py",
              "            psfs[i] = psf\n", "            psfs[i] = psf[::-1, ::-1]\n",
              ("tests/test_psf.py::test_measured_psf_is_the_dot_image_shifted_not_flipped",
