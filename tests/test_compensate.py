@@ -171,15 +171,29 @@ def luminance_distance(a: np.ndarray, b: np.ndarray, rect) -> float:
     return distance((da - db).transpose(2, 0, 1), Metric.ycbcr(compensator_mod.DEFAULT_WEIGHTS))
 
 
+def luma(a: np.ndarray) -> np.ndarray:
+    """Rec. 601 luma of a camera frame, float in [0, 255]."""
+    return a.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+
+
+# Luma PSNR of ycbcr minus rgb against the sharp reference, mean over PHOTOS, per preset: an
+# independent measure (not Eq. 4, which the YCbCr solve minimises). From this test's own
+# views (OpenCL on PoCL, 2 cores, 2026-11-29). Per photo the lead is +0.02 to +0.24 dB, and
+# luma SSIM +0.0001 to +0.0006 (too small to assert); in RGB PSNR rgb is ahead by 0.06-0.17 dB.
+MEASURED_LUMA_LEAD = {"cubicle": 0.121, "tilted": 0.103, "pillar": 0.077}
+
+
 @pytest.mark.parametrize("preset", PRESETS)
-def test_ycbcr_beats_rgb_on_the_luminance_weighted_distance(preset, images):
-    """At the same budget, the YCbCr solve ends nearer the target under Eq. 4 than the RGB
+def test_ycbcr_beats_rgb_in_luma(preset, images):
+    """At the same budget the YCbCr solve ends nearer the target under Eq. 4 than the RGB
     least-squares solve, for every photograph, where the solve measures it (projector space,
-    F P against I); in the camera (which multiplies each channel by the wall's slightly coloured
-    albedo and resamples) it holds over the set of photographs."""
+    F P against I), and in the camera under Eq. 4 over the set of photographs. Scored
+    independently of Eq. 4, the camera's luma PSNR against the sharp reference is higher
+    with YCbCr, by at least MARGIN of the measured lead over the photographs."""
     procam, calib, comps = setup_for(preset)
     m = Metric.ycbcr(compensator_mod.DEFAULT_WEIGHTS)
     cam = {"ycbcr": 0.0, "rgb": 0.0, "none": 0.0}
+    lead = []
     for name in PHOTOS:
         target = decode_lut(comps["none"].warp(images[name]), calib.lut)
         d = {}
@@ -191,7 +205,14 @@ def test_ycbcr_beats_rgb_on_the_luminance_weighted_distance(preset, images):
         v = camera_views(preset, name, images[name])
         for method in cam:
             cam[method] += luminance_distance(v[method], v["sharp"], v["rect"])
+        y = {k: psnr(luma(v[k]), luma(v["sharp"]), v["mask"], data_range=255.0)
+             for k in ("ycbcr", "rgb", "none")}
+        assert y["rgb"] > y["none"], f"{preset}/{name}: luma PSNR {y}"
+        lead.append(y["ycbcr"] - y["rgb"])
     assert cam["ycbcr"] < cam["rgb"] < cam["none"], cam
+    need = MARGIN * MEASURED_LUMA_LEAD[preset]
+    assert np.mean(lead) > need, (f"{preset}: ycbcr's luma PSNR lead over rgb {np.mean(lead):.3f} "
+                                  f"dB < {need:.3f} (per photo {np.round(lead, 3)})")
 
 
 def test_text_slide_sharper_and_headroom_clips_less(images):
