@@ -86,6 +86,7 @@ class FakeCapture:
         self.delay, self.queue, self.rect = delay, queue, rect
         self.refuse, self.ignore = set(refuse), set(ignore)
         self.noise, self.fail_reads = noise, fail_reads
+        self._noise: np.ndarray | None = None     # a noise field reused frame to frame
         self.frozen_at: float | None = None   # a stuck stream repeats what it saw then
         # world(pattern) -> RGB camera frame at the nominal exposure (e.g. the simulator's
         # capture); rendered once per pattern shown.
@@ -245,7 +246,7 @@ class FakeCapture:
                                       (5, 5), 1.0)
             out[y0:y1, x0:x1] = lut[inside]
         if self.noise:
-            if getattr(self, "_noise", None) is None or self._noise.shape != out.shape:
+            if self._noise is None or self._noise.shape != out.shape:
                 self._noise = self.rng.normal(0, self.noise, (2 * h, w)).astype(np.float32)
             k = int(self.rng.integers(0, h))
             out += self._noise[k:k + h]
