@@ -62,8 +62,14 @@ class MotionEstimator:
     Parameters
     ----------
     flow_width : int
-        The flow is computed on frames downscaled by an integer factor to about this width
-        (speed: the correction it moves is smooth at that scale) and upsampled.
+        The flow is computed on frames downscaled by an integer factor to about this width, and
+        upsampled. The correction it moves is sharp (a pre-sharpening pattern), so the flow's
+        precision shows: on the 800×600 cubicle at 2 iterations per frame a 14 px/frame pan
+        gained +2.06 dB over geometry only with 256 px, +2.24 dB with 400 px and +2.42 dB at
+        full size (DIS "fast"); 400 px with DIS "medium" gave +2.38 dB for half the time of
+        the full-size flow.
+    flow_preset : "ultrafast" | "fast" | "medium"
+        OpenCV's DIS preset.
     error_threshold : float
         A pixel is valid when the previous frame moved by the flow matches the current one
         within this many grey levels (after a small blur, so that noise alone does not reject).
@@ -74,15 +80,20 @@ class MotionEstimator:
         that a paused live picture does not resample (and blur) the carried correction.
     """
 
-    def __init__(self, *, flow_width: int = 256, error_threshold: float = 12.0,
-                 cut_fraction: float = 0.3, still_px: float = 0.2):
+    def __init__(self, *, flow_width: int = 400, flow_preset: str = "medium",
+                 error_threshold: float = 12.0, cut_fraction: float = 0.3, still_px: float = 0.2):
         if int(flow_width) < 16:
             raise InputError(f"flow_width must be >= 16; got {flow_width}")
+        presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+                   "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+                   "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+        if flow_preset not in presets:
+            raise InputError(f"flow_preset must be one of {sorted(presets)}; got {flow_preset!r}")
         self.flow_width = int(flow_width)
         self.error_threshold = float(error_threshold)
         self.cut_fraction = float(cut_fraction)
         self.still_px = float(still_px)
-        self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+        self._dis = cv2.DISOpticalFlow_create(presets[flow_preset])
         self._grids: dict[tuple[int, int], np.ndarray] = {}   # pixel grids by size
 
     @staticmethod
