@@ -23,6 +23,8 @@ import time
 import cv2
 import numpy as np
 
+from ..calib.camera_response import linear_to_srgb, srgb_to_linear
+from ..calib.planar import undistort_points
 from ..errors import InputError
 from ..procam import check_pattern
 from .optics import BlurPlan
@@ -34,6 +36,14 @@ log = logging.getLogger(__name__)
 
 SHADING_MEAN = 0.85         # mean relative irradiance over the projector frame
 _OUTSIDE = -1.0e5           # remap coordinate of camera pixels that see no projector light
+
+#: An ordinary webcam in a lit office (the ``"webcam"`` presets of :class:`VirtualProCam`).
+WEBCAM = {"camera_response": "srgb", "projector_gamma": 2.2, "ambient": 0.05, "texture": 0.05,
+          "noise": 2.0 / 255.0, "aperture": "hex", "chromatic": (1.03, 1.0, 0.97),
+          "distortion": (-0.05, 0.0)}
+_DEFAULTS = {"camera_response": "gamma", "projector_gamma": 1.0, "ambient": 0.02,
+             "texture": False, "noise": 0.006, "aperture": "disc", "chromatic": (1.0, 1.0, 1.0),
+             "distortion": (0.0, 0.0)}
 
 
 class VirtualProCam:
@@ -55,6 +65,21 @@ class VirtualProCam:
     texture : add a faint (±4 %) smooth albedo texture to the walls.
     exposure : camera exposure (linear gain before the response curve); None (default) sets
         it so a full white frame peaks at 95 % of full scale.
+    camera_response : ``"gamma"`` (default: code = 255 · L ** (1 / camera_gamma)) or ``"srgb"``
+        (the sRGB transfer curve of a webcam; camera_gamma is then ignored).
+    exposure_drift : relative change of the camera's gain per capture (auto-exposure that
+        could not be locked): capture n is taken with gain ``exp(exposure_drift · n)`` times a
+        seeded jitter of 10 % of that step; 0 (default) holds the exposure still.
+    distortion : (k1, k2) radial distortion of the camera lens about the image centre, radius
+        normalised to 1 at the frame corners (:func:`rtdefocus.calib.planar.distort_points`);
+        negative k1 is barrel distortion. The truth's homographies and fold are in the ideal
+        (undistorted) camera pixels.
+
+    A preset named ``"webcam"`` (or ``"webcam_<scene>"``: ``webcam_pillar``, ``webcam_tilted``,
+    ``webcam_offcenter``, ``webcam_flat``) is an ordinary webcam in a lit office
+    (:data:`WEBCAM`): sRGB camera, projector gamma 2.2, 5 % ambient, 5 % wall texture, noise
+    2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments passed with a
+    value other than their default override the preset's.
 
     Attributes
     ----------
@@ -67,8 +92,26 @@ class VirtualProCam:
                  camera_size: tuple[int, int] = (1280, 960), noise: float = 0.006, seed: int = 0,
                  projector_gamma: float = 1.0, camera_gamma: float = 1.0, ambient: float = 0.02,
                  aperture: str = "disc", chromatic: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 texture: bool = False, exposure: float | None = None):
-        if isinstance(preset, Scene):
+                 texture: bool | float = False, exposure: float | None = None,
+                 camera_response: str = "gamma", exposure_drift: float = 0.0,
+                 distortion: tuple[float, float] = (0.0, 0.0)):
+        given = dict(noise=noise, projector_gamma=projector_gamma, ambient=ambient,
+                     aperture=aperture, chromatic=chromatic, texture=texture,
+                     camera_response=camera_response, distortion=distortion)
+        if isinstance(preset, str) and (preset == "webcam" or preset.startswith("webcam_")):
+            for key, value in WEBCAM.items():
+                if given[key] == _DEFAULTS[key]:
+                    given[key] = value
+            (noise, projector_gamma, ambient, aperture, chromatic, texture, camera_response,
+             distortion) = (given[k] for k in ("noise", "projector_gamma", "ambient", "aperture",
+                                               "chromatic", "texture", "camera_response",
+                                               "distortion"))
+            scene_name = preset[len("webcam_"):] if preset != "webcam" else "cubicle"
+            if scene_name not in PRESETS:
+                raise InputError(f"unknown webcam scene {scene_name!r} in preset {preset!r}; use "
+                                 f"webcam or webcam_<scene> with a scene among {', '.join(PRESETS)}")
+            scene, name = PRESETS[scene_name], preset
+        elif isinstance(preset, Scene):
             scene, name = preset, "custom"
         elif preset in PRESETS:
             scene, name = PRESETS[preset], preset
@@ -88,6 +131,11 @@ class VirtualProCam:
                              f"{projector_gamma}, {camera_gamma}, {exposure}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
+        if camera_response not in ("gamma", "srgb"):
+            raise InputError(f"camera_response must be 'gamma' or 'srgb'; got {camera_response!r}")
+        distortion = tuple(float(k) for k in distortion)
+        if len(distortion) != 2 or max(abs(k) for k in distortion) > 0.3:
+            raise InputError(f"distortion must be (k1, k2) with |k| <= 0.3; got {distortion}")
 
         self.scene = scene
         self.preset = name
@@ -100,7 +148,18 @@ class VirtualProCam:
         self.projector_gamma = float(projector_gamma)
         self.camera_gamma = float(camera_gamma)
         self.exposure = None if exposure is None else float(exposure)
-        self.texture = bool(texture)
+        self.texture = (0.04 if texture else 0.0) if isinstance(texture, bool) else float(texture)
+        self.camera_response = camera_response
+        self.exposure_drift = float(exposure_drift)
+        self.distortion = distortion
+        self._captures = 0
+        self._drift_rng = np.random.default_rng([seed, 11])
+        self._gain = 1.0
+        # Camera code -> linear light at the code's centre (the inverse response; truth).
+        if camera_response == "srgb":
+            self._cam_inverse = srgb_to_linear(np.arange(256) / 255.0)
+        else:
+            self._cam_inverse = (np.arange(256) / 255.0) ** self.camera_gamma
         self._rng = np.random.default_rng(seed)
         tex_rng = np.random.default_rng([seed, 7])
         self._tex_phase = tex_rng.uniform(0, 2 * math.pi, size=(2, 3))
@@ -221,15 +280,15 @@ class VirtualProCam:
         out = np.zeros((3, wall.size))
         hit = wall >= 0
         out[:, hit] = base[wall[hit]].T
-        if self.texture and hit.any():
+        if self.texture > 0 and hit.any():
             s = np.zeros(wall.size)
             for i, w in enumerate(self._walls):
                 sel = wall == i
                 e = w.e if w.e is not None else np.cross([0.0, 1.0, 0.0], w.n)
                 s[sel] = e @ (pts_w[:, sel] - w.origin[:, None])
             y, ph = pts_w[1], self._tex_phase
-            # Faint (about ±4 %) smooth pattern fixed to the wall, in metres along it.
-            tex = 1.0 + 0.02 * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
+            # Faint (±texture) smooth pattern fixed to the wall, in metres along it.
+            tex = 1.0 + 0.5 * self.texture * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
                                 * np.sin(2 * math.pi * y / 0.29 + ph[0, 1])
                                 + np.sin(2 * math.pi * (s + y) / 0.61 + ph[0, 2]))
             out[:, hit] *= tex[hit]
@@ -271,6 +330,10 @@ class VirtualProCam:
 
         # Ray-cast every camera pixel to the walls, then to projector pixel coordinates.
         gx, gy = np.meshgrid(np.arange(wc, dtype=np.float64), np.arange(hc, dtype=np.float64))
+        if self.distortion != (0.0, 0.0):
+            # Each observed pixel looks along the ray of its ideal (undistorted) position.
+            ideal = undistort_points(np.stack([gx, gy], axis=-1), self.distortion, self.camera_size)
+            gx, gy = ideal[..., 0], ideal[..., 1]
         dirs_w = (R.T @ np.linalg.inv(self.K_cam)) @ np.stack([gx.ravel(), gy.ravel(),
                                                                 np.ones(gx.size)])
         t, wall = _cast(center, dirs_w, self._walls)
@@ -343,6 +406,9 @@ class VirtualProCam:
             chromatic=self.chromatic, aperture=self.aperture,
             projector_gamma=self.projector_gamma, camera_gamma=self.camera_gamma,
             exposure=self.exposure,
+            camera_response=self._cam_inverse.astype(np.float32),
+            camera_response_kind=self.camera_response, distortion=self.distortion,
+            exposure_drift=self.exposure_drift,
             extra={"margin": m, "camera_in_frame": self._cam_in_frame,
                    "camera_plane_map": self._cam_plane},
         )
@@ -393,10 +459,19 @@ class VirtualProCam:
                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         cam += self.ambient
         cam *= self._cam_albedo                       # Lambertian walls, exposure folded in
+        if not sharp:
+            if self.exposure_drift != 0.0 and self._captures > 0:
+                step = self.exposure_drift * (1.0 + 0.1 * float(self._drift_rng.standard_normal()))
+                self._gain *= math.exp(step)
+            self._captures += 1
+            if self._gain != 1.0:
+                cam *= np.float32(self._gain)
         if not sharp and self.noise > 0:
             cam += self._rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
         np.clip(cam, 0.0, 1.0, out=cam)
-        if self.camera_gamma != 1.0:
+        if self.camera_response == "srgb":
+            cam = linear_to_srgb(cam)
+        elif self.camera_gamma != 1.0:
             cam = cam ** np.float32(1.0 / self.camera_gamma)
         return np.rint(cam * 255.0).astype(np.uint8)
 
