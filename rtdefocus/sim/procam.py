@@ -55,14 +55,19 @@ class VirtualProCam:
         :class:`Scene`.
     projector_size, camera_size : (width, height) in pixels.
     noise : standard deviation of the camera's Gaussian noise, as a fraction of full scale
-        (linear light, before the camera response).
+        (linear light, before the camera response); default 0.006. The options below that
+        default to None take the preset's value (the plain defaults given here, or
+        :data:`WEBCAM`).
     seed : seed of the noise (and of the faint wall texture).
-    projector_gamma : projector response, linear light = (v / 255) ** projector_gamma.
+    projector_gamma : projector response, linear light = (v / 255) ** projector_gamma (1.0).
     camera_gamma : camera response, code = 255 · L ** (1 / camera_gamma).
-    ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean).
-    aperture : "disc" (pillbox) or "hex" (regular hexagon of circumradius r).
-    chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus).
-    texture : add a faint (±4 %) smooth albedo texture to the walls.
+    ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean);
+        0.02.
+    aperture : "disc" (pillbox, default) or "hex" (regular hexagon of circumradius r).
+    chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus);
+        (1, 1, 1).
+    texture : a smooth albedo texture on the walls: its amplitude (±texture, a fraction), True
+        for ±4 %, False (default) for none.
     exposure : camera exposure (linear gain before the response curve); None (default) sets
         it so a full white frame peaks at 95 % of full scale.
     camera_response : ``"gamma"`` (default: code = 255 · L ** (1 / camera_gamma)) or ``"srgb"``
@@ -78,8 +83,8 @@ class VirtualProCam:
     A preset named ``"webcam"`` (or ``"webcam_<scene>"``: ``webcam_pillar``, ``webcam_tilted``,
     ``webcam_offcenter``, ``webcam_flat``) is an ordinary webcam in a lit office
     (:data:`WEBCAM`): sRGB camera, projector gamma 2.2, 5 % ambient, 5 % wall texture, noise
-    2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments passed with a
-    value other than their default override the preset's.
+    2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments that are given
+    (not None) override the preset's.
 
     Attributes
     ----------
@@ -89,23 +94,24 @@ class VirtualProCam:
     """
 
     def __init__(self, preset: str | Scene = "cubicle", *, projector_size: tuple[int, int] = (800, 600),
-                 camera_size: tuple[int, int] = (1280, 960), noise: float = 0.006, seed: int = 0,
-                 projector_gamma: float = 1.0, camera_gamma: float = 1.0, ambient: float = 0.02,
-                 aperture: str = "disc", chromatic: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 texture: bool | float = False, exposure: float | None = None,
-                 camera_response: str = "gamma", exposure_drift: float = 0.0,
-                 distortion: tuple[float, float] = (0.0, 0.0)):
+                 camera_size: tuple[int, int] = (1280, 960), noise: float | None = None,
+                 seed: int = 0, projector_gamma: float | None = None, camera_gamma: float = 1.0,
+                 ambient: float | None = None, aperture: str | None = None,
+                 chromatic: tuple[float, float, float] | None = None,
+                 texture: bool | float | None = None, exposure: float | None = None,
+                 camera_response: str | None = None, exposure_drift: float = 0.0,
+                 distortion: tuple[float, float] | None = None):
+        webcam = isinstance(preset, str) and (preset == "webcam" or preset.startswith("webcam_"))
+        # None: the preset's value (WEBCAM for the webcam presets), else the plain default.
+        base = WEBCAM if webcam else _DEFAULTS
         given = dict(noise=noise, projector_gamma=projector_gamma, ambient=ambient,
                      aperture=aperture, chromatic=chromatic, texture=texture,
                      camera_response=camera_response, distortion=distortion)
-        if isinstance(preset, str) and (preset == "webcam" or preset.startswith("webcam_")):
-            for key, value in WEBCAM.items():
-                if given[key] == _DEFAULTS[key]:
-                    given[key] = value
-            (noise, projector_gamma, ambient, aperture, chromatic, texture, camera_response,
-             distortion) = (given[k] for k in ("noise", "projector_gamma", "ambient", "aperture",
-                                               "chromatic", "texture", "camera_response",
-                                               "distortion"))
+        given = {k: (base.get(k, _DEFAULTS[k]) if v is None else v) for k, v in given.items()}
+        (noise, projector_gamma, ambient, aperture, chromatic, texture, camera_response,
+         distortion) = (given[k] for k in ("noise", "projector_gamma", "ambient", "aperture",
+                                           "chromatic", "texture", "camera_response", "distortion"))
+        if webcam:
             scene_name = preset[len("webcam_"):] if preset != "webcam" else "cubicle"
             if scene_name not in PRESETS:
                 raise InputError(f"unknown webcam scene {scene_name!r} in preset {preset!r}; use "
