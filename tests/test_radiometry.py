@@ -76,8 +76,10 @@ def test_albedo_is_white_minus_black_at_the_frame_edge():
 
 def test_captures_counted():
     calib = calibrated("cubicle").calib
-    assert calib.meta["captures"]["radiometry"] == 6          # 3 black + 2 white + 1 ramp
-    assert calib.meta["radiometry"]["captures"] == 6
+    # 3 black + 2 white + the ramp and its two halves (camera response by superposition,
+    # camera_response="auto"), each averaged over response_frames = 2
+    assert calib.meta["captures"]["radiometry"] == 11
+    assert calib.meta["radiometry"]["captures"] == 11
 
 
 @pytest.fixture(scope="module")
