@@ -303,6 +303,8 @@ class PsfRun:
         return target
 
 
+# Camera px: smoothing of the background (ambient / projector light) under the dots.
+_BG_SMOOTH = 2.0
 # Fewest measured dots a plane (or the fold) needs: its kernel field is blended from them.
 _MIN_MEASURED = 3
 
@@ -348,6 +350,23 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
     return skipped
 
 
+def camera_sides(calib: Calibration) -> list[np.ndarray]:
+    """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
+    undistorted camera coordinates); one all-true mask for a single plane."""
+    from ..planar import undistort_points
+
+    wc, hc = calib.camera_size
+    fold = getattr(calib, "fold_cam", None)
+    if calib.n_planes == 1 or fold is None or not np.any(fold):
+        return [np.ones((hc, wc), bool)]
+    yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
+    xy = np.stack([xx, yy], axis=-1)
+    if getattr(calib, "camera_distortion", None) is not None:
+        xy = undistort_points(xy, calib.camera_distortion, calib.camera_size)
+    neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
+    return [neg, ~neg]
+
+
 def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
     """``f(frame) -> (Hc, Wc) float32``: a dot frame's linear light minus the black frame,
     divided by the white frame's (channels summed), NaN where the white frame is not clearly
@@ -374,14 +393,33 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
     span = white - black
     # Divide by the white frame's own light, except where the blur makes it fall off (the
     # frame's edges): there by the nearby full level (a max filter over ~2 blur diameters),
-    # so the faint spill beyond the edge is not amplified into noise.
-    env = cv2.GaussianBlur(ndimage.maximum_filter(span, size=31), (0, 0), 5.0)
+    # so the faint spill beyond the edge is not amplified into noise. The full level is taken
+    # within each wall only: across the fold the other wall's (brighter) level would divide
+    # the dimmer wall's side of every kernel near the fold and bend it.
+    sides = camera_sides(calib)
+    env = np.zeros_like(span)
+    for side in sides:
+        e = cv2.GaussianBlur(ndimage.maximum_filter(np.where(side, span, 0.0), size=31),
+                             (0, 0), 5.0)
+        env = np.where(side, e, env)
     div = np.maximum(span, 0.9 * env)
     ok = env > 0.05 * float(np.percentile(span, 99))
-    inv = np.where(ok, 1.0 / np.where(ok, div, 1.0), np.nan).astype(np.float32)
+    inv = np.where(ok, 1.0 / np.where(ok, div, 1.0), 0.0)
+    # The background to take off: B / (W − B) is the ambient (and projector black) over the
+    # projector's light, smooth within a wall since the albedo and its texture cancel. Taken
+    # smoothed within each wall, not B itself: the black frame is averaged over far fewer
+    # captures than a dot pattern, and its per-pixel noise would stay in every kernel.
+    ratio, bg = black * inv, np.zeros_like(span)
+    for side in sides:
+        m = (side & ok).astype(np.float64)
+        num = cv2.GaussianBlur(ratio * m, (0, 0), _BG_SMOOTH)
+        den = cv2.GaussianBlur(m, (0, 0), _BG_SMOOTH)
+        bg = np.where(side, num / np.maximum(den, 1e-6), bg)
+    inv = np.where(ok, inv, np.nan).astype(np.float32)
+    bg = bg.astype(np.float32)
 
     def normalise(frame: np.ndarray) -> np.ndarray:
-        return (linearize_camera(frame, camera_gamma).sum(axis=2) - black) * inv
+        return linearize_camera(frame, camera_gamma).sum(axis=2) * inv - bg
 
     return normalise
 
