@@ -44,6 +44,7 @@ from .camera_response import (
     split_pattern,
 )
 from .capture import Capturer
+from .exposure import check_drift, check_exposure
 from .file import Calibration
 from .planar import apply_h_per_plane
 
@@ -331,7 +332,12 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     black_pat = np.zeros((hp, wp, 3), np.uint8)
     white_pat = np.full((hp, wp, 3), 255, np.uint8)
     black_c = mean_frame(capture, "black", black_pat, black_frames)
-    white_c = mean_frame(capture, "white", white_pat, white_frames)
+    # One white frame now, the rest at the end of the stage: the two must agree (a camera whose
+    # auto-exposure or white balance is not locked drifts in between).
+    spaced = cached_frame_count(capture, "white") == 0 and white_frames >= 2
+    white_first = mean_frame(capture, "white", white_pat, 1)
+    in_view = _lit_camera_mask(calib)
+    check_exposure(white_first, in_view, SATURATED)
 
     # ---- the camera's own response first: every frame below is linearised with it
     response_info: dict = {}
@@ -346,11 +352,17 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         ramp_c = mean_frame(capture, "ramp", ramp_pat, response_frames)
         a_c = mean_frame(capture, "ramp_a", pat_a, response_frames)
         b_c = mean_frame(capture, "ramp_b", pat_b, response_frames)
-        in_view = _lit_camera_mask(calib)
         cam_lut, response_info = fit_inverse_response(black_c, a_c, b_c, ramp_c, in_view)
         kind = "auto"
     calib.camera_lut = cam_lut
     camera_gamma = cam_lut                              # what linearize_camera uses below
+    if ramp_layout == "patches" and ramp_c is None:
+        ramp_c = capture(ramp_pat)
+    white_c = mean_frame(capture, "white", white_pat, white_frames)
+    drift_info = None
+    if spaced:
+        later = (white_c * white_frames - white_first) / (white_frames - 1)
+        drift_info = check_drift(white_first, later, black_c, in_view, cam_lut)
 
     maps = projector_to_camera_maps(calib)
     black_p, seen = to_projector(calib, linearize_camera(black_c, camera_gamma), maps)
@@ -380,7 +392,6 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     support = np.zeros(levels.size, dtype=int)
     if ramp_layout == "patches":
         cells = ramp_cells
-        ramp_c = ramp_c if ramp_c is not None else capture(ramp_pat)
         ramp_p, _ = to_projector(calib, linearize_camera(ramp_c, camera_gamma), maps)
         frames = [ramp_p] * len(levels)
     else:
@@ -433,6 +444,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         "fit_rms": [round(r, 5) for r in rms],
         "response_model": response_model,
         "camera_response": kind,
+        "white_drift": None if drift_info is None else np.round(drift_info, 4).tolist(),
         "camera_response_fit": response_info,
         "camera_lut_at": {str(c): np.round(cam_lut[:, c], 4).tolist() for c in (32, 64, 128, 192)},
         "levels": levels[ok].tolist(),
