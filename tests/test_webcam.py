@@ -253,3 +253,29 @@ def test_calibration_file_keeps_the_camera_and_reads_version_1(tmp_path):
     old = Calibration.load(tmp_path / "v1.npz")
     assert old.camera_lut is None and old.camera_distortion is None
     assert np.array_equal(old.psfs, calib.psfs)
+
+
+# --------------------------------------------------------------------------- lens distortion
+def test_radial_k1_from_straight_lines_on_each_plane():
+    """Crossings of a plane seen through a barrel lens: k1 is what makes them a homography."""
+    from rtdefocus.calib.homography import estimate_radial_k1
+
+    size = (640, 480)
+    gx, gy = np.meshgrid(np.arange(20, 400, 25.0), np.arange(20, 300, 25.0))
+    proj = np.column_stack([gx.ravel(), gy.ravel()])
+    sets = []
+    for H in (np.array([[1.2, 0.1, 30], [0.02, 1.1, 40], [1e-4, 2e-4, 1]]),
+              np.array([[0.9, -0.1, 200], [0.05, 1.2, 20], [-2e-4, 1e-4, 1]])):
+        cam = distort_points(apply_h(H, proj), (-0.08, 0.0), size)
+        sets.append((proj, cam))
+    k1, rms, rms0 = estimate_radial_k1(sets, size)
+    assert abs(k1 + 0.08) < 0.002 and rms < 0.01 < rms0, (k1, rms, rms0)
+
+
+@pytest.mark.parametrize("k1", [-0.05, 0.0])
+def test_geometry_reports_the_lens_k1(k1):
+    from rtdefocus.calib.geometry import calibrate_geometry
+
+    pc = sim.VirtualProCam("webcam", distortion=(k1, 0.0), **SMALL)
+    d = calibrate_geometry(pc).meta["geometry"]["distortion"]
+    assert abs(d["k1"] - k1) < 0.01, d

@@ -2,8 +2,9 @@
 
     .venv/bin/python tools/webcam_table.py webcam webcam_pillar --no-distortion
 
-Prints one row per preset: camera response error (max abs of the inverse curve over codes
-0.05..0.95), projector gamma (recovered / true), fold error (projector px), kernel relative
+Prints one row per preset: the lens k1 (recovered / true), camera response error (max abs
+of the inverse curve over codes 0.05..0.95), projector gamma (recovered / true),
+fold error (projector px), kernel relative
 L2 medians inside the planes and within 12 px of the fold, and the dots skipped.
 """
 
@@ -44,7 +45,9 @@ def row(preset: str, distortion: bool) -> str:
         fold = float(np.abs(cal.fold_proj[0] * xs + cal.fold_proj[1] * ys + cal.fold_proj[2]).max())
     else:
         fold = float("nan")
-    return (f"| {preset} | {cam:.4f} | {np.mean(r['gamma']):.3f} / {t.projector_gamma} | "
+    k1 = cal.meta["geometry"].get("distortion", {}).get("k1", float("nan"))
+    return (f"| {preset} | {k1:.4f} / {t.distortion[0]:g} | {cam:.4f} | "
+            f"{np.mean(r['gamma']):.3f} / {t.projector_gamma} | "
             f"{fold:.3f} | {ei:.3f} | {en:.3f} | {len(cal.meta['psf'].get('skipped', []))} |")
 
 
@@ -53,9 +56,10 @@ def main() -> None:
     ap.add_argument("presets", nargs="+")
     ap.add_argument("--no-distortion", action="store_true", help="set the lens distortion to 0")
     args = ap.parse_args()
-    print("| preset | camera response err | projector gamma rec / true | fold err (proj px) | "
+    print("| preset | k1 rec / true | camera response err | projector gamma rec / true | "
+          "fold err (proj px) | "
           "kernel L2 inside | kernel L2 near fold | dots skipped |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for p in args.presets:
         print(row(p, not args.no_distortion), flush=True)
 
