@@ -175,7 +175,7 @@ class PsfRun:
     first_count: int                    # the capturer's psf count before this run
     model: RadiusModel
     blind: RadiusModel | None = None    # one affine fit over the frame (cross-fold baseline)
-    normalise: object | None = None     # frame_normaliser: codes -> (I − B) / (W − B)
+    normalise: object | None = None     # frame_normaliser: codes -> I / (W − B) − background
 
     @classmethod
     def start(cls, calib: Calibration, capture: Capturer, options: PsfOptions,
@@ -368,9 +368,10 @@ def camera_sides(calib: Calibration) -> list[np.ndarray]:
 
 
 def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
-    """``f(frame) -> (Hc, Wc) float32``: a dot frame's linear light minus the black frame,
-    divided by the white frame's (channels summed), NaN where the white frame is not clearly
-    brighter than the black one.
+    """``f(frame) -> (Hc, Wc) float32``: a dot frame's linear light divided by the white
+    frame's above the black one (channels summed), less the background (the black frame over
+    the same, smoothed within each wall); NaN where the white frame is not clearly brighter
+    than the black one.
 
     This is the dot's light as a fraction of what a full-on projector gives at each camera
     pixel, so the wall's albedo and texture, the shading and the ambient light cancel (they
