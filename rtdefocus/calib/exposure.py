@@ -27,13 +27,25 @@ _LOCK_HINT = ("Lock the camera's auto-exposure and auto white balance (docs/hard
               "then calibrate again")
 
 
-def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0) -> None:
+def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,
+                   black: np.ndarray | None = None) -> None:
     """Raise :class:`CalibrationError` when the white frame (camera codes, (Hc, Wc, 3)) clips
     on more than 5 % of the ``lit`` camera pixels (lower the exposure) or stays dim (raise it).
+
+    With ``black``, a white frame hardly above the black one on most of the lit area is its
+    own error (the projector is off or the camera looks elsewhere: no exposure fixes that).
     """
-    w = np.asarray(white, np.float32)[np.asarray(lit, bool)]
+    m = np.asarray(lit, bool)
+    w = np.asarray(white, np.float32)[m]
     if len(w) == 0:
         return
+    if black is not None:
+        above = (w - np.asarray(black, np.float32)[m]).max(axis=1) > 4.0
+        if above.mean() < 0.25:
+            raise CalibrationError(
+                f"the white frame is brighter than the black one on only {100 * above.mean():.0f}% "
+                "of the lit camera pixels: is the projector on, the camera pointed at the surface, "
+                "and the geometry calibration right?")
     clipped = float((w >= saturated).any(axis=1).mean())
     if clipped > _CLIP_FRACTION:
         raise CalibrationError(

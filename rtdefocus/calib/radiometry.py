@@ -337,7 +337,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     spaced = cached_frame_count(capture, "white") == 0 and white_frames >= 2
     white_first = mean_frame(capture, "white", white_pat, 1)
     in_view = _lit_camera_mask(calib)
-    check_exposure(white_first, in_view, SATURATED)
+    check_exposure(white_first, in_view, SATURATED, black_c)
 
     # ---- the camera's own response first: every frame below is linearised with it
     response_info: dict = {}
