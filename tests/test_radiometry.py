@@ -77,8 +77,10 @@ def test_albedo_is_white_minus_black_at_the_frame_edge():
 
 def test_captures_counted():
     calib = calibrated("cubicle").calib
-    assert calib.meta["captures"]["radiometry"] == 6          # 3 black + 2 white + 1 ramp
-    assert calib.meta["radiometry"]["captures"] == 6
+    # 3 black + 2 white + the ramp and its two halves (camera response by superposition,
+    # camera_response="auto"), each averaged over response_frames = 2
+    assert calib.meta["captures"]["radiometry"] == 11
+    assert calib.meta["radiometry"]["captures"] == 11
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +96,8 @@ def test_camera_gamma_option(camera_gamma_procam):
     cap = Capturer(Blind(procam))      # shared: the second run reuses the black and white frames
     known = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap,
                                  camera_gamma=1.8)
-    assumed = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap)
+    assumed = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap,
+                                   camera_response="linear")
     assert cap.counts["radiometry"] == 7
     g_known = np.mean(known.meta["radiometry"]["gamma"])
     g_assumed = np.mean(assumed.meta["radiometry"]["gamma"])

@@ -36,7 +36,10 @@ from .planar import largest_inscribed_rect
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "rtdefocus-calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions :meth:`Calibration.load` reads: 1 (before the camera's response and lens
+#: distortion were recorded; both are then taken as ideal) and the current one.
+READABLE_VERSIONS = (1, 2)
 #: meta key of the content digest (hex SHA-256, see :func:`content_digest`).
 DIGEST_KEY = "sha256"
 
@@ -61,7 +64,12 @@ PSF_ARRAYS = {
     "pix_idx": (np.int32, ("Hp", "Wp", 4)),
     "pix_wts": (np.float32, ("Hp", "Wp", 4)),
 }
-SECTIONS = {"geometry": GEOMETRY_ARRAYS, "radiometry": RADIOMETRY_ARRAYS, "psf": PSF_ARRAYS}
+#: Version 2: the camera lens (radial distortion, geometry stage) and the camera's inverse
+#: response (radiometry stage); absent means an ideal lens and a linear camera.
+LENS_ARRAYS = {"camera_distortion": (np.float64, (2,))}
+CAMERA_ARRAYS = {"camera_lut": (np.float32, (3, 256))}
+SECTIONS = {"geometry": GEOMETRY_ARRAYS, "radiometry": RADIOMETRY_ARRAYS, "psf": PSF_ARRAYS,
+            "lens": LENS_ARRAYS, "camera": CAMERA_ARRAYS}
 
 
 def _identity_lut() -> np.ndarray:
@@ -78,6 +86,10 @@ class Calibration:
     Radiometry (optional): ``response_lut`` (3, 256) code -> linear light, ``ambient_proj``,
     ``albedo_proj`` (Hp, Wp, 3). PSF (optional): ``psf_points_proj`` (N, 2), ``psf_plane`` (N,),
     ``psfs`` (N, k, k) unit-sum gather kernels, ``pix_idx`` / ``pix_wts`` (Hp, Wp, 4).
+    Camera (optional, format 2): ``camera_distortion`` (2,) float64 radial (k1, k2) of the
+    lens (:func:`~rtdefocus.calib.planar.distort_points`; the homographies, fold and outline
+    are in undistorted camera pixels), ``camera_lut`` (3, 256) float32 the camera's inverse
+    response, code -> linear light.
     ``meta`` holds options, statistics and provenance (JSON-serialisable).
     """
 
@@ -96,6 +108,8 @@ class Calibration:
     psfs: np.ndarray | None = None
     pix_idx: np.ndarray | None = None
     pix_wts: np.ndarray | None = None
+    camera_distortion: np.ndarray | None = None
+    camera_lut: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     #: What the geometry stage saw (:class:`~rtdefocus.calib.geometry.GeometryDetail`), for its
     #: diagnostics picture; in memory only, never saved.
@@ -300,10 +314,10 @@ class Calibration:
             raise CalibrationFileError(f"{str(path)!r} is not an rtdefocus calibration "
                                        f"(format {fmt!r})")
         version = meta.get("format_version")
-        if version != FORMAT_VERSION:
+        if version not in READABLE_VERSIONS:
             raise CalibrationFileError(
                 f"{str(path)!r} has calibration format version {version}, this rtdefocus reads "
-                f"version {FORMAT_VERSION}; recalibrate with this version")
+                f"versions {READABLE_VERSIONS}; recalibrate with this version")
         try:
             psize = tuple(int(v) for v in meta["projector_size"])
             csize = tuple(int(v) for v in meta["camera_size"])

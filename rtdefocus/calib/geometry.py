@@ -37,7 +37,7 @@ from ..procam import ProCam
 from .capture import Capturer
 from .file import Calibration
 from .fold import Kink, find_kink, fit_fold, fold_to_projector
-from .homography import fit_homography, line_crossings
+from .homography import estimate_radial_k1, fit_homography, line_crossings
 from .planar import canonical_line, line_eval, lit_polygon, segment_in_mask
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
@@ -224,6 +224,13 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                 "px: the kinks do not lie where the homographies meet. Check that the surface is "
                 "two flat walls, that the camera sees both, and that nothing moved.")
     detail.plane, detail.inliers = plane, inliers
+    # The lens's radial distortion, from how far each plane's crossings are from a homography
+    # (reported; the homographies above stay in observed camera coordinates).
+    k1, rms_k1, rms_0 = estimate_radial_k1(
+        [(proj[(plane == p) & inliers], cam[(plane == p) & inliers])
+         for p in range(int(stats["n_planes"]))], camera_size)
+    stats["distortion"] = {"k1": round(k1, 4), "rms_px": round(rms_k1, 4),
+                           "rms_px_without": round(rms_0, 4)}
     Hs = np.stack([H / H[2, 2] for H in Hs])
     Hinv = np.stack([np.linalg.inv(H) for H in Hs])
     Hinv = np.stack([H / H[2, 2] for H in Hinv])

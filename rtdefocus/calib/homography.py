@@ -8,6 +8,8 @@ the inliers (OpenCV's ``findHomography``), gives the camera-from-projector homog
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -135,3 +137,38 @@ def fit_homography(pts_proj_xy: np.ndarray, pts_cam_xy: np.ndarray, *, threshold
     return H, inl, rms
 
 
+
+
+def estimate_radial_k1(sets: list[tuple[np.ndarray, np.ndarray]], camera_size: tuple[int, int],
+                       bound: float = 0.3) -> tuple[float, float, float]:
+    """The camera's radial distortion k1 (model of :func:`~.planar.distort_points`) from the
+    line crossings of each plane.
+
+    A projected line is straight on a plane, so the camera points of a plane are a homography
+    of their projector points once undistorted: k1 is the value that makes each plane's
+    homography fit best (a 1-D search; the homographies by DLT + LM on the given points).
+    ``sets``: per plane, (projector xy (n, 2), camera xy (n, 2)) — the RANSAC inliers.
+
+    Returns (k1, rms at k1, rms at k1 = 0), the RMS in camera px over all planes.
+    """
+    from scipy.optimize import minimize_scalar
+
+    from .planar import undistort_points
+
+    def cost(k1: float) -> float:
+        sq, n = 0.0, 0
+        for proj, cam in sets:
+            if len(proj) < 8:
+                continue
+            und = undistort_points(cam, (k1, 0.0), camera_size)
+            H, _ = cv2.findHomography(np.ascontiguousarray(proj, np.float64),
+                                      np.ascontiguousarray(und, np.float64), 0)
+            if H is None or not np.isfinite(H).all():
+                return float("inf")
+            sq += float((np.linalg.norm(apply_h(H, proj) - und, axis=1) ** 2).sum())
+            n += len(proj)
+        return math.sqrt(sq / max(n, 1))
+
+    res = minimize_scalar(cost, bounds=(-bound, bound), method="bounded",
+                          options={"xatol": 1e-4})
+    return float(res.x), float(res.fun), cost(0.0)

@@ -293,3 +293,50 @@ def largest_inscribed_rect(polygon: np.ndarray, aspect: float, camera_size: tupl
 
 
 # --------------------------------------------------------------------------- the stage
+
+
+# --------------------------------------------------------------------------- lens distortion
+def distortion_scale(camera_size: tuple[int, int]) -> tuple[float, float, float]:
+    """Centre (cx, cy) and radius normalisation of the radial distortion model: the image
+    centre, and half the frame diagonal (r = 1 at the corners)."""
+    wc, hc = camera_size
+    return (wc - 1) / 2.0, (hc - 1) / 2.0, 0.5 * math.hypot(wc, hc)
+
+
+def distort_points(pts_xy: np.ndarray, k: tuple[float, float] | np.ndarray,
+                   camera_size: tuple[int, int]) -> np.ndarray:
+    """Ideal (pinhole) camera pixels -> observed pixels under radial distortion.
+
+    ``x_obs = c + (x - c)(1 + k1 r² + k2 r⁴)`` with r = |x - c| / (half diagonal), c the image
+    centre (:func:`distortion_scale`). ``pts_xy`` (..., 2); returns float64 of the same shape.
+    """
+    p = np.asarray(pts_xy, dtype=np.float64)
+    k1, k2 = (float(v) for v in k)
+    if k1 == 0.0 and k2 == 0.0:
+        return p.copy()
+    cx, cy, s = distortion_scale(camera_size)
+    dx, dy = (p[..., 0] - cx) / s, (p[..., 1] - cy) / s
+    r2 = dx * dx + dy * dy
+    f = 1.0 + k1 * r2 + k2 * r2 * r2
+    return np.stack([cx + s * dx * f, cy + s * dy * f], axis=-1)
+
+
+def undistort_points(pts_xy: np.ndarray, k: tuple[float, float] | np.ndarray,
+                     camera_size: tuple[int, int], iterations: int = 12) -> np.ndarray:
+    """Observed camera pixels -> ideal (pinhole) pixels: the inverse of :func:`distort_points`
+    (fixed-point iteration; exact to ~1e-6 px for |k1|, |k2| < 0.3)."""
+    p = np.asarray(pts_xy, dtype=np.float64)
+    k1, k2 = (float(v) for v in k)
+    if k1 == 0.0 and k2 == 0.0:
+        return p.copy()
+    cx, cy, s = distortion_scale(camera_size)
+    dx, dy = (p[..., 0] - cx) / s, (p[..., 1] - cy) / s
+    ux, uy = dx.copy(), dy.copy()
+    for _ in range(iterations):
+        r2 = ux * ux + uy * uy
+        f = 1.0 + k1 * r2 + k2 * r2 * r2
+        ux, uy = dx / f, dy / f
+    return np.stack([cx + s * ux, cy + s * uy], axis=-1)
+
+
+__all__ += ["distortion_scale", "distort_points", "undistort_points"]

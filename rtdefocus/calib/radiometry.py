@@ -11,11 +11,13 @@ each. For any pixel inside a patch (farther than the blur from the patch's borde
 there, so a single capture gives the whole ramp, averaged over thousands of pixels. The three
 camera channels give the three projector channels (gray patches; no crosstalk assumed).
 
-Only the composition camera-response ∘ projector-response is observable. The camera is assumed
-linear (RAW-like, the simulator's default), or to follow the known power law ``camera_gamma``
-(codes are linearised first). A camera with an unknown curve makes the recovered exponent
-wrong — with ambient light the composed curve is not even a power law (a camera of gamma 1.8
-turns a true 2.2 into ~1.44 here) — so measure the camera's response first and pass it.
+The camera's own response comes first (``camera_response``, :mod:`.camera_response`):
+``"auto"`` (default) recovers it from captures alone by superposition — the ramp pattern
+and the two halves of a random split of it (2 more patterns) — ``"srgb"`` / ``"linear"``
+take a known curve, and ``camera_gamma`` ≠ 1 a known power law. Every camera frame is then
+linearised with it (``calib.camera_lut``), so g, Γ, α and the PSF stage's kernels are all in
+camera-linear light. (Without this, a camera with an unknown curve makes the recovered
+exponent wrong — with ambient light the composed curve is not even a power law.)
 
 Γ and α are mapped into projector pixels through each plane's homography (the plane of a
 projector pixel is given by the fold line, as in the warp): Γ = black (smoothed within each
@@ -34,7 +36,15 @@ import cv2
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from .camera_response import (
+    CAMERA_RESPONSES,
+    fit_inverse_response,
+    known_response,
+    linearize,
+    split_pattern,
+)
 from .capture import Capturer
+from .exposure import check_drift, check_exposure
 from .file import Calibration
 from .planar import apply_h_per_plane
 
@@ -57,8 +67,11 @@ class RadiometryOptions:
     ramp_levels : gray levels of the ramp, ints in 1..254 (and 255).
     ramp_layout : ``"patches"``: all levels in one capture as a grid of patches (needs no
         interreflection between the walls); ``"frames"``: one full-frame capture per level.
-    camera_gamma : the camera's known response exponent (1 = linear camera; see the module
-        docstring).
+    camera_response : ``"auto"`` (recover it by superposition), ``"srgb"`` or ``"linear"``
+        (module docstring); recorded as ``calib.camera_lut``.
+    response_frames : captures averaged per superposition pattern (``"auto"``).
+    camera_gamma : a known power-law camera (code/255)**camera_gamma; ≠ 1 overrides
+        ``camera_response``.
     response_model : ``"auto"`` | ``"gamma"`` | ``"table"``: the LUT is a fitted power law, a
         monotone interpolation of the measurements, or the power law when it fits every level
         within 0.01 (else the table).
@@ -71,6 +84,8 @@ class RadiometryOptions:
     white_frames: int = 2
     ramp_levels: tuple = DEFAULT_LEVELS
     ramp_layout: str = "patches"
+    camera_response: str = "auto"
+    response_frames: int = 2
     camera_gamma: float = 1.0
     response_model: str = "auto"
     ambient_smooth: float = 2.0
@@ -88,15 +103,13 @@ _FRAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 # --------------------------------------------------------------------------- helpers
-def linearize_camera(codes: np.ndarray, camera_gamma: float = 1.0) -> np.ndarray:
+def linearize_camera(codes: np.ndarray, camera_gamma: float | np.ndarray | None = 1.0) -> np.ndarray:
     """Camera code values (0..255, any float/uint8 array) -> camera-linear light in [0, 1].
 
-    ``camera_gamma = 1`` is a linear camera; otherwise ``(code / 255) ** camera_gamma``.
+    ``camera_gamma``: 1 (or None) is a linear camera; a number ``(code / 255) ** camera_gamma``;
+    a (3, 256) inverse-response table (``calib.camera_lut``) is interpolated per channel.
     """
-    x = np.asarray(codes, dtype=np.float32) / np.float32(255.0)
-    if camera_gamma != 1.0:
-        x = np.power(np.clip(x, 0.0, None), np.float32(camera_gamma))
-    return x
+    return linearize(codes, camera_gamma)
 
 
 def mean_frame(capture: Capturer, key: str, pattern: np.ndarray, n: int) -> np.ndarray:
@@ -250,10 +263,26 @@ def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sig
     return out
 
 
+def _lit_camera_mask(calib: Calibration) -> np.ndarray:
+    """(Hc, Wc) bool: camera pixels inside the lit outline (``lit_polygon_cam``), through the
+    lens distortion when there is one."""
+    from .planar import distort_points
+
+    wc, hc = calib.camera_size
+    poly = np.asarray(calib.lit_polygon_cam, np.float64)
+    if calib.camera_distortion is not None:
+        poly = distort_points(poly, calib.camera_distortion, calib.camera_size)
+    mask = np.zeros((hc, wc), np.uint8)
+    cv2.fillPoly(mask, [np.round(poly).astype(np.int32)], 1)
+    return mask.astype(bool)
+
+
 # --------------------------------------------------------------------------- the stage
 def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
                          black_frames: int = _D.black_frames, white_frames: int = _D.white_frames,
                          ramp_levels=_D.ramp_levels, ramp_layout: str = _D.ramp_layout,
+                         camera_response: str = _D.camera_response,
+                         response_frames: int = _D.response_frames,
                          camera_gamma: float = _D.camera_gamma,
                          response_model: str = _D.response_model,
                          ambient_smooth: float = _D.ambient_smooth) -> Calibration:
@@ -266,8 +295,8 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         With the geometry section (homographies, fold); filled in place and returned.
     capture : Capturer
         Counts the captures (stage ``"radiometry"``).
-    black_frames, white_frames, ramp_levels, ramp_layout, camera_gamma, response_model,
-    ambient_smooth
+    black_frames, white_frames, ramp_levels, ramp_layout, camera_response, response_frames,
+    camera_gamma, response_model, ambient_smooth
         See :class:`RadiometryOptions` (their defaults are its defaults).
 
     Returns
@@ -290,16 +319,50 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     levels = np.array(sorted({int(v) for v in ramp_levels}), dtype=int)
     if levels.size < 2 or levels.min() < 1 or levels.max() > 255:
         raise InputError(f"ramp_levels needs at least 2 distinct levels in 1..255; got {ramp_levels}")
-    if black_frames < 1 or white_frames < 1:
-        raise InputError("black_frames and white_frames must be >= 1")
+    if black_frames < 1 or white_frames < 1 or response_frames < 1:
+        raise InputError("black_frames, white_frames and response_frames must be >= 1")
+    if camera_response not in CAMERA_RESPONSES:
+        raise InputError(f"camera_response must be one of {CAMERA_RESPONSES}; got {camera_response!r}")
     wp, hp = calib.projector_size
     n_ramp = 1 if ramp_layout == "patches" else len(levels)
-    capture.begin("radiometry", black_frames + white_frames + n_ramp)
+    auto = camera_response == "auto" and camera_gamma == 1.0
+    capture.begin("radiometry", black_frames + white_frames + n_ramp
+                  + (3 * response_frames - (1 if ramp_layout == "patches" else 0) if auto else 0))
 
     black_pat = np.zeros((hp, wp, 3), np.uint8)
     white_pat = np.full((hp, wp, 3), 255, np.uint8)
     black_c = mean_frame(capture, "black", black_pat, black_frames)
+    # One white frame now, the rest at the end of the stage: the two must agree (a camera whose
+    # auto-exposure or white balance is not locked drifts in between).
+    spaced = cached_frame_count(capture, "white") == 0 and white_frames >= 2
+    white_first = mean_frame(capture, "white", white_pat, 1)
+    in_view = _lit_camera_mask(calib)
+    check_exposure(white_first, in_view, SATURATED, black_c)
+
+    # ---- the camera's own response first: every frame below is linearised with it
+    response_info: dict = {}
+    ramp_pat, ramp_cells = ramp_pattern(calib.projector_size, levels)
+    ramp_c = None
+    if camera_gamma != 1.0:
+        cam_lut, kind = known_response(float(camera_gamma)), f"gamma {camera_gamma:g}"
+    elif not auto:
+        cam_lut, kind = known_response(camera_response), camera_response
+    else:
+        pat_a, pat_b = split_pattern(ramp_pat)
+        ramp_c = mean_frame(capture, "ramp", ramp_pat, response_frames)
+        a_c = mean_frame(capture, "ramp_a", pat_a, response_frames)
+        b_c = mean_frame(capture, "ramp_b", pat_b, response_frames)
+        cam_lut, response_info = fit_inverse_response(black_c, a_c, b_c, ramp_c, in_view)
+        kind = "auto"
+    calib.camera_lut = cam_lut
+    camera_gamma = cam_lut                              # what linearize_camera uses below
+    if ramp_layout == "patches" and ramp_c is None:
+        ramp_c = capture(ramp_pat)
     white_c = mean_frame(capture, "white", white_pat, white_frames)
+    drift_info = None
+    if spaced:
+        later = (white_c * white_frames - white_first) / (white_frames - 1)
+        drift_info = check_drift(white_first, later, black_c, in_view, cam_lut)
 
     maps = projector_to_camera_maps(calib)
     black_p, seen = to_projector(calib, linearize_camera(black_c, camera_gamma), maps)
@@ -328,8 +391,8 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     ratios = np.full((3, levels.size), np.nan)
     support = np.zeros(levels.size, dtype=int)
     if ramp_layout == "patches":
-        pattern, cells = ramp_pattern(calib.projector_size, levels)
-        ramp_p, _ = to_projector(calib, linearize_camera(capture(pattern), camera_gamma), maps)
+        cells = ramp_cells
+        ramp_p, _ = to_projector(calib, linearize_camera(ramp_c, camera_gamma), maps)
         frames = [ramp_p] * len(levels)
     else:
         cells = np.tile([0, 0, wp, hp], (len(levels), 1))
@@ -380,7 +443,10 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         "gamma": [round(g, 4) for g in gammas],
         "fit_rms": [round(r, 5) for r in rms],
         "response_model": response_model,
-        "camera_gamma": float(camera_gamma),
+        "camera_response": kind,
+        "white_drift": None if drift_info is None else np.round(drift_info, 4).tolist(),
+        "camera_response_fit": response_info,
+        "camera_lut_at": {str(c): np.round(cam_lut[:, c], 4).tolist() for c in (32, 64, 128, 192)},
         "levels": levels[ok].tolist(),
         "ratios": np.round(ratios[:, ok], 5).tolist(),
         "seen_fraction": round(float(seen.mean()), 4),

@@ -21,11 +21,11 @@ Modules, one concept each:
 from .optics import RADIUS_STEP, blend_kernel
 from .oracle import oracle_calibration
 from .patterns import PATTERNS, test_pattern
-from .procam import SHADING_MEAN, VirtualProCam, capture_seconds
+from .procam import SHADING_MEAN, WEBCAM, VirtualProCam, capture_seconds
 from .scene import PRESETS, Scene
 from .truth import GroundTruth
 
 __all__ = [
-    "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "VirtualProCam",
+    "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "VirtualProCam", "WEBCAM",
     "blend_kernel", "capture_seconds", "oracle_calibration", "test_pattern",
 ]

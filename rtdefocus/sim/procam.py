@@ -23,6 +23,8 @@ import time
 import cv2
 import numpy as np
 
+from ..calib.camera_response import linear_to_srgb, srgb_to_linear
+from ..calib.planar import undistort_points
 from ..errors import InputError
 from ..procam import check_pattern
 from .optics import BlurPlan
@@ -35,6 +37,14 @@ log = logging.getLogger(__name__)
 TEXTURES = ("none", "faint", "fabric")
 SHADING_MEAN = 0.85         # mean relative irradiance over the projector frame
 _OUTSIDE = -1.0e5           # remap coordinate of camera pixels that see no projector light
+
+#: An ordinary webcam in a lit office (the ``"webcam"`` presets of :class:`VirtualProCam`).
+WEBCAM = {"camera_response": "srgb", "projector_gamma": 2.2, "ambient": 0.05, "texture": 0.05,
+          "noise": 2.0 / 255.0, "aperture": "hex", "chromatic": (1.03, 1.0, 0.97),
+          "distortion": (-0.05, 0.0)}
+_DEFAULTS = {"camera_response": "gamma", "projector_gamma": 1.0, "ambient": None,
+             "texture": None, "noise": 0.006, "aperture": "disc", "chromatic": (1.0, 1.0, 1.0),
+             "distortion": (0.0, 0.0)}
 
 
 def _fabric(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
@@ -65,21 +75,41 @@ class VirtualProCam:
         :class:`Scene`.
     projector_size, camera_size : (width, height) in pixels.
     noise : standard deviation of the camera's Gaussian noise, as a fraction of full scale
-        (linear light, before the camera response).
+        (linear light, before the camera response); default 0.006. The options below that
+        default to None take the preset's value (the plain defaults given here, or
+        :data:`WEBCAM`).
     seed : seed of the noise (and of the faint wall texture).
-    projector_gamma : projector response, linear light = (v / 255) ** projector_gamma.
+    projector_gamma : projector response, linear light = (v / 255) ** projector_gamma (1.0).
     camera_gamma : camera response, code = 255 · L ** (1 / camera_gamma).
     ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean);
-        None: the scene's (``Scene.ambient``), else 0.02.
-    aperture : "disc" (pillbox) or "hex" (regular hexagon of circumradius r).
-    chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus).
+        None: the preset's (the webcam presets' 0.05, else the scene's ``Scene.ambient``, else
+        0.02).
+    aperture : "disc" (pillbox, default) or "hex" (regular hexagon of circumradius r).
+    chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus);
+        (1, 1, 1).
     texture : printed albedo texture of the walls: False / "none", True / "faint" (±4 %,
-        smooth), "fabric" (a woven partition: ±8 % weave of 3 cm period on the left wall; a
-        coloured striped poster (albedo × 0.45–1.0 per channel) and soft wood-grain bands on
-        the right one; the faint texture on both); None (default): the scene's
-        (``Scene.texture``). The ground truth's ``albedo_proj`` includes it.
+        smooth), a number (the smooth texture's amplitude, a fraction), "fabric" (a woven
+        partition: ±8 % weave of 3 cm period on the left wall; a coloured striped poster
+        (albedo × 0.45–1.0 per channel) and soft wood-grain bands on the right one; the faint
+        texture on both); None (default): the preset's (``Scene.texture``; 5 % for the webcam
+        presets). The ground truth's ``albedo_proj`` includes it.
     exposure : camera exposure (linear gain before the response curve); None (default) sets
         it so a full white frame peaks at 95 % of full scale.
+    camera_response : ``"gamma"`` (default: code = 255 · L ** (1 / camera_gamma)) or ``"srgb"``
+        (the sRGB transfer curve of a webcam; camera_gamma is then ignored).
+    exposure_drift : relative change of the camera's gain per capture (auto-exposure that
+        could not be locked): capture n is taken with gain ``exp(exposure_drift · n)`` times a
+        seeded jitter of 10 % of that step; 0 (default) holds the exposure still.
+    distortion : (k1, k2) radial distortion of the camera lens about the image centre, radius
+        normalised to 1 at the frame corners (:func:`rtdefocus.calib.planar.distort_points`);
+        negative k1 is barrel distortion. The truth's homographies and fold are in the ideal
+        (undistorted) camera pixels.
+
+    A preset named ``"webcam"`` (or ``"webcam_<scene>"``: ``webcam_pillar``, ``webcam_tilted``,
+    ``webcam_offcenter``, ``webcam_flat``) is an ordinary webcam in a lit office
+    (:data:`WEBCAM`): sRGB camera, projector gamma 2.2, 5 % ambient, 5 % wall texture, noise
+    2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments that are given
+    (not None) override the preset's.
 
     Attributes
     ----------
@@ -89,12 +119,30 @@ class VirtualProCam:
     """
 
     def __init__(self, preset: str | Scene = "cubicle", *, projector_size: tuple[int, int] = (800, 600),
-                 camera_size: tuple[int, int] = (1280, 960), noise: float = 0.006, seed: int = 0,
-                 projector_gamma: float = 1.0, camera_gamma: float = 1.0,
-                 ambient: float | None = None, aperture: str = "disc",
-                 chromatic: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 texture: bool | str | None = None, exposure: float | None = None):
-        if isinstance(preset, Scene):
+                 camera_size: tuple[int, int] = (1280, 960), noise: float | None = None,
+                 seed: int = 0, projector_gamma: float | None = None, camera_gamma: float = 1.0,
+                 ambient: float | None = None, aperture: str | None = None,
+                 chromatic: tuple[float, float, float] | None = None,
+                 texture: bool | float | str | None = None, exposure: float | None = None,
+                 camera_response: str | None = None, exposure_drift: float = 0.0,
+                 distortion: tuple[float, float] | None = None):
+        webcam = isinstance(preset, str) and (preset == "webcam" or preset.startswith("webcam_"))
+        # None: the preset's value (WEBCAM for the webcam presets), else the plain default.
+        base = WEBCAM if webcam else _DEFAULTS
+        given = dict(noise=noise, projector_gamma=projector_gamma, ambient=ambient,
+                     aperture=aperture, chromatic=chromatic, texture=texture,
+                     camera_response=camera_response, distortion=distortion)
+        given = {k: (base.get(k, _DEFAULTS[k]) if v is None else v) for k, v in given.items()}
+        (noise, projector_gamma, ambient, aperture, chromatic, texture, camera_response,
+         distortion) = (given[k] for k in ("noise", "projector_gamma", "ambient", "aperture",
+                                           "chromatic", "texture", "camera_response", "distortion"))
+        if webcam:
+            scene_name = preset[len("webcam_"):] if preset != "webcam" else "cubicle"
+            if scene_name not in PRESETS:
+                raise InputError(f"unknown webcam scene {scene_name!r} in preset {preset!r}; use "
+                                 f"webcam or webcam_<scene> with a scene among {', '.join(PRESETS)}")
+            scene, name = PRESETS[scene_name], preset
+        elif isinstance(preset, Scene):
             scene, name = preset, "custom"
         elif preset in PRESETS:
             scene, name = PRESETS[preset], preset
@@ -116,11 +164,26 @@ class VirtualProCam:
             ambient = 0.02 if scene.ambient is None else scene.ambient
         if texture is None:
             texture = scene.texture
-        texture = {False: "none", True: "faint"}.get(texture, texture)
-        if texture not in TEXTURES:
-            raise InputError(f"texture must be one of {TEXTURES} (or True/False); got {texture!r}")
+        # A name, a bool or the smooth texture's amplitude; "fabric" has the faint one too.
+        if isinstance(texture, (bool, np.bool_)):
+            texture = "faint" if texture else "none"
+        if isinstance(texture, (int, float)):
+            if not 0 <= float(texture) <= 0.5:
+                raise InputError(f"a texture amplitude must be in [0, 0.5]; got {texture}")
+            texture_amplitude = float(texture)
+            texture = "faint" if texture_amplitude > 0 else "none"
+        elif texture in TEXTURES:
+            texture_amplitude = 0.0 if texture == "none" else 0.04
+        else:
+            raise InputError(f"texture must be one of {TEXTURES}, True/False or an amplitude in "
+                             f"[0, 0.5]; got {texture!r}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
+        if camera_response not in ("gamma", "srgb"):
+            raise InputError(f"camera_response must be 'gamma' or 'srgb'; got {camera_response!r}")
+        distortion = tuple(float(k) for k in distortion)
+        if len(distortion) != 2 or max(abs(k) for k in distortion) > 0.3:
+            raise InputError(f"distortion must be (k1, k2) with |k| <= 0.3; got {distortion}")
 
         self.scene = scene
         self.preset = name
@@ -134,6 +197,18 @@ class VirtualProCam:
         self.camera_gamma = float(camera_gamma)
         self.exposure = None if exposure is None else float(exposure)
         self.texture = texture
+        self.texture_amplitude = texture_amplitude
+        self.camera_response = camera_response
+        self.exposure_drift = float(exposure_drift)
+        self.distortion = distortion
+        self._captures = 0
+        self._drift_rng = np.random.default_rng([seed, 11])
+        self._gain = 1.0
+        # Camera code -> linear light at the code's centre (the inverse response; truth).
+        if camera_response == "srgb":
+            self._cam_inverse = srgb_to_linear(np.arange(256) / 255.0)
+        else:
+            self._cam_inverse = (np.arange(256) / 255.0) ** self.camera_gamma
         self._rng = np.random.default_rng(seed)
         tex_rng = np.random.default_rng([seed, 7])
         self._tex_phase = tex_rng.uniform(0, 2 * math.pi, size=(2, 3))
@@ -254,15 +329,15 @@ class VirtualProCam:
         out = np.zeros((3, wall.size))
         hit = wall >= 0
         out[:, hit] = base[wall[hit]].T
-        if self.texture != "none" and hit.any():
+        if self.texture_amplitude > 0 and hit.any():
             s = np.zeros(wall.size)
             for i, w in enumerate(self._walls):
                 sel = wall == i
                 e = w.e if w.e is not None else np.cross([0.0, 1.0, 0.0], w.n)
                 s[sel] = e @ (pts_w[:, sel] - w.origin[:, None])
             y, ph = pts_w[1], self._tex_phase
-            # Faint (about ±4 %) smooth pattern fixed to the wall, in metres along it.
-            tex = 1.0 + 0.02 * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
+            # Faint (±texture) smooth pattern fixed to the wall, in metres along it.
+            tex = 1.0 + 0.5 * self.texture_amplitude * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
                                 * np.sin(2 * math.pi * y / 0.29 + ph[0, 1])
                                 + np.sin(2 * math.pi * (s + y) / 0.61 + ph[0, 2]))
             out[:, hit] *= tex[hit]
@@ -306,6 +381,10 @@ class VirtualProCam:
 
         # Ray-cast every camera pixel to the walls, then to projector pixel coordinates.
         gx, gy = np.meshgrid(np.arange(wc, dtype=np.float64), np.arange(hc, dtype=np.float64))
+        if self.distortion != (0.0, 0.0):
+            # Each observed pixel looks along the ray of its ideal (undistorted) position.
+            ideal = undistort_points(np.stack([gx, gy], axis=-1), self.distortion, self.camera_size)
+            gx, gy = ideal[..., 0], ideal[..., 1]
         dirs_w = (R.T @ np.linalg.inv(self.K_cam)) @ np.stack([gx.ravel(), gy.ravel(),
                                                                 np.ones(gx.size)])
         t, wall = _cast(center, dirs_w, self._walls)
@@ -378,6 +457,9 @@ class VirtualProCam:
             chromatic=self.chromatic, aperture=self.aperture,
             projector_gamma=self.projector_gamma, camera_gamma=self.camera_gamma,
             exposure=self.exposure,
+            camera_response=self._cam_inverse.astype(np.float32),
+            camera_response_kind=self.camera_response, distortion=self.distortion,
+            exposure_drift=self.exposure_drift,
             extra={"margin": m, "camera_in_frame": self._cam_in_frame,
                    "camera_plane_map": self._cam_plane},
         )
@@ -428,10 +510,19 @@ class VirtualProCam:
                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         cam += self.ambient
         cam *= self._cam_albedo                       # Lambertian walls, exposure folded in
+        if not sharp:
+            if self.exposure_drift != 0.0 and self._captures > 0:
+                step = self.exposure_drift * (1.0 + 0.1 * float(self._drift_rng.standard_normal()))
+                self._gain *= math.exp(step)
+            self._captures += 1
+            if self._gain != 1.0:
+                cam *= np.float32(self._gain)
         if not sharp and self.noise > 0:
             cam += self._rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
         np.clip(cam, 0.0, 1.0, out=cam)
-        if self.camera_gamma != 1.0:
+        if self.camera_response == "srgb":
+            cam = linear_to_srgb(cam)
+        elif self.camera_gamma != 1.0:
             cam = cam ** np.float32(1.0 / self.camera_gamma)
         return np.rint(cam * 255.0).astype(np.uint8)
 

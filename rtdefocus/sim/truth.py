@@ -32,6 +32,12 @@ class GroundTruth:
     focus_distance : m; blur_scale : A·f in px·m, so r = blur_scale·|1/focus_distance − 1/D|.
     chromatic : per-channel scale of r; aperture : "disc" | "hex".
     projector_gamma, camera_gamma, exposure : response parameters (see VirtualProCam).
+    camera_response : (256,) float32, the camera's inverse response: linear light (0..1) of
+        each code (what calibration's camera response should recover); ``camera_response_kind``
+        "gamma" | "srgb".
+    distortion : (k1, k2) radial lens distortion (:func:`rtdefocus.calib.planar.distort_points`);
+        ``H_cam_from_proj`` and ``fold_cam`` are in ideal (undistorted) camera pixels.
+    exposure_drift : the camera gain's relative change per capture.
     extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the
         projector frame; ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
         (-1: none); ``margin``, projector px simulated beyond the frame edge.
@@ -58,6 +64,10 @@ class GroundTruth:
     projector_gamma: float
     camera_gamma: float
     exposure: float
+    camera_response: np.ndarray | None = None
+    camera_response_kind: str = "gamma"
+    distortion: tuple[float, float] = (0.0, 0.0)
+    exposure_drift: float = 0.0
     extra: dict = field(default_factory=dict)
 
     def kernel_at(self, x: float, y: float, size: int | None = None, channel: int = 1) -> np.ndarray:

@@ -70,6 +70,7 @@ import numpy as np
 from ...errors import InputError
 from ..capture import Capturer
 from ..file import Calibration
+from ..radiometry import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
     Measurement,
@@ -170,10 +171,11 @@ class PsfRun:
     calib: Calibration
     capture: Capturer
     options: PsfOptions
-    camera_gamma: float
+    camera_gamma: float | np.ndarray    # the camera's inverse response (linearize_camera)
     first_count: int                    # the capturer's psf count before this run
     model: RadiusModel
     blind: RadiusModel | None = None    # one affine fit over the frame (cross-fold baseline)
+    normalise: object | None = None     # frame_normaliser: codes -> I / (W − B) − background
 
     @classmethod
     def start(cls, calib: Calibration, capture: Capturer, options: PsfOptions,
@@ -183,18 +185,20 @@ class PsfRun:
             if lay not in LAYOUTS:
                 raise InputError(f"layout must be one of {LAYOUTS}; got {lay!r}")
         dot_sizes(np.zeros(1), options.dot_size)       # validates
-        camera_gamma = float(calib.meta.get("radiometry", {}).get("camera_gamma", 1.0))
+        # The camera's inverse response from the radiometry stage (linear when not measured).
+        camera_gamma = calib.camera_lut if calib.camera_lut is not None else 1.0
         capture.begin("psf", options.psf_captures)
         n0 = capture.counts.get("psf", 0)
+        norm = frame_normaliser(calib, capture, camera_gamma)
         # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
         model = pilot_radius(calib, capture, spacing=options.pilot_spacing,
-                             camera_gamma=camera_gamma)
+                             camera_gamma=camera_gamma, normalise=norm)
         blind = None
         if any(cf for _, cf in layouts):
             # What a method unaware of the fold assumes: one plane, so one affine radius.
             blind = RadiusModel(model.points, model.radii)
             blind.fit(0, force_affine=True)
-        return cls(calib, capture, options, camera_gamma, n0, model, blind)
+        return cls(calib, capture, options, camera_gamma, n0, model, blind, norm)
 
     def plan(self, key: tuple[str, bool]) -> SamplePlan:
         """The sample plan of ``(layout, cross_fold)`` (step 2)."""
@@ -237,7 +241,8 @@ class PsfRun:
                 urad_a[first], dot_sizes(urad_a[first], o.dot_size))))
             averages = max(2, (o.psf_captures - used) // n_first)
         meas = measure_psfs(calib, capture, upts_a, urad_a, averages=averages,
-                            camera_gamma=self.camera_gamma, dot_size=o.dot_size)
+                            camera_gamma=self.camera_gamma, dot_size=o.dot_size,
+                            normalise=self.normalise)
         log.info("psf: %d dots in %d patterns x %d averages; radius %.2f..%.2f px; snr %.0f..%.0f",
                  len(upts_a), meas.patterns, averages, meas.radius.min(), meas.radius.max(),
                  meas.snr.min(), meas.snr.max())
@@ -254,14 +259,22 @@ class PsfRun:
         # then clean: a support from each averaged kernel's radius, and a floor at the noise
         # left after averaging, which removes the faint noise ring around wide kernels.
         raw = common_window([meas.raw[i] for i in sel], meas.bound[sel])
+        skipped = fill_skipped(raw, plan, meas.skipped[sel] if meas.skipped is not None else
+                               np.zeros(len(sel), bool))
         n_eff = np.ones(len(raw))
+        noise = meas.noise[sel].copy()
+        if skipped.any():
+            # A filled-in kernel is an average of measured ones: its own noise is about theirs,
+            # and it must not weigh in the averages below as if it were a measurement.
+            noise[skipped] = float(np.median(noise[~skipped]))
         if o.iso_tolerance > 0:
             signed = plan.radius if plan.radius_signed is None else plan.radius_signed
             raw, n_eff = iso_average(raw, plan.points, plan.planes, signed,
-                                     meas.noise[sel], o.iso_tolerance, o.iso_distance)
+                                     np.where(skipped, 1e3 * noise, noise), o.iso_tolerance,
+                                     o.iso_distance)
         cleaned, tight = [], np.zeros(len(raw))
         for j in range(len(raw)):
-            floor = _NOISE_FLOOR * meas.noise[sel[j]] / math.sqrt(n_eff[j])
+            floor = _NOISE_FLOOR * noise[j] / math.sqrt(n_eff[j])
             psf_j, _, tight[j] = _clean(raw[j].astype(np.float64), float(meas.bound[sel[j]]),
                                         floor)
             cleaned.append(psf_j)
@@ -283,10 +296,133 @@ class PsfRun:
             "pilot_model": {str(k): v for k, v in
                             (self.blind if key[1] else self.model).kind.items()},
             "median_snr": round(float(np.median(meas.snr[sel])), 1),
+            "skipped": [[int(x), int(y)] for x, y in plan.points[skipped]],
             "iso_average": {"tolerance": o.iso_tolerance, "distance": o.iso_distance,
                             "median_n_eff": round(float(np.median(n_eff)), 2)},
         }
         return target
+
+
+# Camera px: smoothing of the background (ambient / projector light) under the dots.
+_BG_SMOOTH = 2.0
+# Fewest measured dots a plane (or the fold) needs: its kernel field is blended from them.
+_MIN_MEASURED = 3
+
+
+def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.ndarray:
+    """Replace the kernels of dots too faint to measure by their neighbours' (in place).
+
+    Each skipped dot takes the average of the measured kernels of its own region weighted by
+    closeness in predicted blur radius (0.3 px scale) and in position (150 px scale): on a
+    plane the kernel depends on the blur radius, which the pilot predicts. Returns
+    ``skipped``.
+
+    Raises
+    ------
+    CalibrationError
+        A region keeps fewer than 3 measured dots: the message names the region and says how
+        to get more light to the camera.
+    """
+    from ...errors import CalibrationError
+
+    skipped = np.asarray(skipped, bool)
+    if not skipped.any():
+        return skipped
+    radius = plan.radius if plan.radius_signed is None else plan.radius_signed
+    for reg in np.unique(plan.planes[skipped]):
+        mine = plan.planes == reg
+        good = np.flatnonzero(mine & ~skipped)
+        if len(good) < _MIN_MEASURED:
+            where = "on the fold" if reg == FOLD else f"on plane {int(reg)}"
+            raise CalibrationError(
+                f"only {len(good)} of {int(mine.sum())} PSF dots {where} could be measured (need "
+                f"{_MIN_MEASURED}); the rest are too faint against the camera noise and the room's "
+                "light. Darken the room, raise the camera's exposure (without clipping the white "
+                "frame) or average more captures (psf_captures)")
+        for j in np.flatnonzero(mine & skipped):
+            dr = np.abs(radius[good] - radius[j])
+            d = np.hypot(*(plan.points[good] - plan.points[j]).T.astype(np.float64))
+            w = np.exp(-(dr / 0.3) ** 2 - (d / 150.0) ** 2) + 1e-12
+            raw[j] = np.tensordot(w / w.sum(), raw[good], axes=1)
+    log.warning("psf: %d of %d dots were too faint to measure and were filled from their "
+                "neighbours on the same plane: %s", int(skipped.sum()), len(skipped),
+                plan.points[skipped].tolist())
+    return skipped
+
+
+def camera_sides(calib: Calibration) -> list[np.ndarray]:
+    """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
+    undistorted camera coordinates); one all-true mask for a single plane."""
+    from ..planar import undistort_points
+
+    wc, hc = calib.camera_size
+    fold = getattr(calib, "fold_cam", None)
+    if calib.n_planes == 1 or fold is None or not np.any(fold):
+        return [np.ones((hc, wc), bool)]
+    yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
+    xy = np.stack([xx, yy], axis=-1)
+    if getattr(calib, "camera_distortion", None) is not None:
+        xy = undistort_points(xy, calib.camera_distortion, calib.camera_size)
+    neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
+    return [neg, ~neg]
+
+
+def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
+    """``f(frame) -> (Hc, Wc) float32``: a dot frame's linear light divided by the white
+    frame's above the black one (channels summed), less the background (the black frame over
+    the same, smoothed within each wall); NaN where the white frame is not clearly brighter
+    than the black one.
+
+    This is the dot's light as a fraction of what a full-on projector gives at each camera
+    pixel, so the wall's albedo and texture, the shading and the ambient light cancel (they
+    would otherwise tilt and shift each dot's profile). The black and white frames are the
+    radiometry stage's (reused) or, without it, two captures each.
+    """
+    import cv2
+    from scipy import ndimage
+
+    from ..radiometry import cached_frame_count, mean_frame
+
+    wp, hp = calib.projector_size
+    frames = []
+    for key, value in (("black", 0), ("white", 255)):
+        n = max(cached_frame_count(capture, key), 2)
+        frames.append(linearize_camera(mean_frame(capture, key, np.full((hp, wp, 3), value,
+                                                                         np.uint8), n),
+                                       camera_gamma).sum(axis=2))
+    black, white = frames
+    span = white - black
+    # Divide by the white frame's own light, except where the blur makes it fall off (the
+    # frame's edges): there by the nearby full level (a max filter over ~2 blur diameters),
+    # so the faint spill beyond the edge is not amplified into noise. The full level is taken
+    # within each wall only: across the fold the other wall's (brighter) level would divide
+    # the dimmer wall's side of every kernel near the fold and bend it.
+    sides = camera_sides(calib)
+    env = np.zeros_like(span)
+    for side in sides:
+        e = cv2.GaussianBlur(ndimage.maximum_filter(np.where(side, span, 0.0), size=31),
+                             (0, 0), 5.0)
+        env = np.where(side, e, env)
+    div = np.maximum(span, 0.9 * env)
+    ok = env > 0.05 * float(np.percentile(span, 99))
+    inv = np.where(ok, 1.0 / np.where(ok, div, 1.0), 0.0)
+    # The background to take off: B / (W − B) is the ambient (and projector black) over the
+    # projector's light, smooth within a wall since the albedo and its texture cancel. Taken
+    # smoothed within each wall, not B itself: the black frame is averaged over far fewer
+    # captures than a dot pattern, and its per-pixel noise would stay in every kernel.
+    ratio, bg = black * inv, np.zeros_like(span)
+    for side in sides:
+        m = (side & ok).astype(np.float64)
+        num = cv2.GaussianBlur(ratio * m, (0, 0), _BG_SMOOTH)
+        den = cv2.GaussianBlur(m, (0, 0), _BG_SMOOTH)
+        bg = np.where(side, num / np.maximum(den, 1e-6), bg)
+    inv = np.where(ok, inv, np.nan).astype(np.float32)
+    bg = bg.astype(np.float32)
+
+    def normalise(frame: np.ndarray) -> np.ndarray:
+        return linearize_camera(frame, camera_gamma).sum(axis=2) * inv - bg
+
+    return normalise
 
 
 def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
@@ -296,8 +432,8 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
     Parameters
     ----------
     procam : ProCam (only used through ``capture``)
-    calib : Calibration with the geometry section (radiometry optional: its camera_gamma is
-        reused); filled in place and returned.
+    calib : Calibration with the geometry section (radiometry optional: its ``camera_lut``
+        linearises the frames); filled in place and returned.
     capture : Capturer (stage ``"psf"``).
     options : PsfOptions, optional
         The stage's options (default: :class:`PsfOptions`' defaults).

@@ -33,6 +33,9 @@ _DOT2_RADIUS, _DOT3_RADIUS = 3.25, 7.0
 # at r ≈ 5 px against a 1-px dot; 0.02..0.1 are within 10 % of each other.
 _RIDGE_DECONV = 0.05
 _RIDGE_EXACT = 1e-6    # 1-px dot: only guards kernel pixels that no camera pixel sees
+# A dot whose light (the kernel's sum) is below this many sigmas of a sum of noise over its LS
+# disc is skipped (too faint to measure); filled from its neighbours by the PSF stage.
+_MIN_SNR = 3.0
 
 
 def pack_patterns(points: np.ndarray, support: np.ndarray, window: np.ndarray) -> list[list[int]]:
@@ -201,6 +204,7 @@ class Measurement:
     patterns: int
     averages: int
     captures: int
+    skipped: np.ndarray | None = None   # (N,) bool: too faint to measure (a delta placeholder)
 
 
 def dot_sizes(radius_pred: np.ndarray, dot_size: int | str = "auto") -> np.ndarray:
@@ -220,12 +224,14 @@ def _dot_geometry(radius_pred: np.ndarray, dots: np.ndarray) -> tuple[np.ndarray
 
 
 def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
-                 radius_pred: np.ndarray, *, averages: int, camera_gamma: float = 1.0,
-                 dot_size: int | str = "auto") -> Measurement:
+                 radius_pred: np.ndarray, *, averages: int, camera_gamma=1.0,
+                 dot_size: int | str = "auto", normalise=None) -> Measurement:
     """Measure the PSF of a dot at each of ``points`` (N, 2) int (steps 3-5).
 
     Dots are packed into patterns (no two lights overlap a window), each pattern is averaged
     over ``averages`` captures, and each dot is solved by :func:`solve_dot` and cleaned.
+    ``normalise`` (optional): frame codes -> the (Hc, Wc) image the dots are solved on
+    (:func:`~rtdefocus.calib.psf.frame_normaliser`; NaN pixels are left out).
     """
     wp, hp = calib.projector_size
     points = np.asarray(points, int)
@@ -240,6 +246,7 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
     tight = np.zeros(len(points))
     snr = np.zeros(len(points))
     noise = np.zeros(len(points))
+    skipped = np.zeros(len(points), bool)
     for pat in patterns:
         pattern = np.zeros((hp, wp, 3), np.uint8)
         for i in pat:
@@ -250,7 +257,8 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
         frame = capture.mean(pattern, averages)
         # Sum of the three channels: ~sqrt(3) more signal-to-noise than one, same kernel
         # when the blur is achromatic (the stored F is one field for all channels anyway).
-        img = linearize_camera(frame, camera_gamma).sum(axis=2)
+        img = linearize_camera(frame, camera_gamma).sum(axis=2) if normalise is None else \
+            normalise(frame)
         for i in pat:
             x, y = (int(v) for v in points[i])
             bbox = _camera_bbox(calib, x, y, int(win[i]))
@@ -262,7 +270,25 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
             if nrows < (2 * win[i] + 1) ** 2 // 2:
                 log.warning("PSF at (%d, %d): only %d camera pixels see its window", x, y, nrows)
             energy = k.sum()
-            psf, r, t = _clean(k, float(sup[i]))
+            try:
+                psf, r, t = _clean(k, float(sup[i]))
+            except CalibrationError:
+                psf = None
+            # The dot's total light against the noise of a sum over the LS disc's pixels.
+            n_disc = math.pi * float(sup[i]) ** 2
+            peak_snr = float(energy) / max(sg * math.sqrt(n_disc), 1e-12)
+            if psf is None or energy <= 0 or peak_snr < _MIN_SNR:
+                # Too faint to measure (a dark wall, strong ambient light): filled from its
+                # neighbours later (PsfRun.fill), not fatal here.
+                skipped[i] = True
+                log.info("PSF at (%d, %d): too faint (energy %.4g, SNR %.1f); skipped",
+                         x, y, energy, peak_snr)
+                psf = np.zeros_like(k)
+                psf[k.shape[0] // 2, k.shape[1] // 2] = 1.0
+                psfs[i], raw[i] = psf, psf.copy()
+                sigma[i], radius[i], tight[i], snr[i] = sg, 0.0, 1.0, peak_snr
+                noise[i] = 1.0
+                continue
             # Noise of the unit-sum kernel: the spread of what was fitted outside the kernel's
             # own support (true value 0) but inside the LS disc.
             hh = k.shape[0] // 2
@@ -280,7 +306,7 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
             snr[i] = (psf.max() * energy) / max(sg, 1e-12)
     return Measurement(psfs=psfs, raw=raw, bound=sup, radius=radius, support=tight,
                        sigma=sigma, snr=snr, noise=noise, dots=dots, patterns=len(patterns),
-                       averages=averages, captures=len(patterns) * averages)
+                       averages=averages, captures=len(patterns) * averages, skipped=skipped)
 
 
 def common_window(psfs: list, support: np.ndarray) -> np.ndarray:

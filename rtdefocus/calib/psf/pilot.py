@@ -116,11 +116,14 @@ def _fit_region(pts: np.ndarray, r: np.ndarray, force_affine: bool = False):
 
 
 def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, dot: int = 3,
-                 camera_gamma: float = 1.0, single_region: bool = False) -> RadiusModel:
+                 camera_gamma=1.0, single_region: bool = False,
+                 normalise=None) -> RadiusModel:
     """One capture of ``dot``×``dot`` squares every ``spacing`` px → a blur radius model.
 
     The radius of each spot comes from its second moment around its centroid, less the dot's
     and the camera resampling's own share: for a disc of radius r, E[u² + v²] = r² / 2.
+    ``normalise`` (optional, :func:`~rtdefocus.calib.psf.frame_normaliser`) turns the frame
+    into the dots' light relative to the white frame (NaN where unlit, read as 0 here).
     """
     # scipy loads on first use (~1 s): `import rtdefocus.calib` (the player loads Calibration) stays fast.
     from scipy import ndimage
@@ -138,7 +141,10 @@ def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, d
     o = (dot - 1) // 2
     for x, y in pts:
         pattern[y - o:y - o + dot, x - o:x - o + dot] = 255
-    frame = linearize_camera(capture(pattern), camera_gamma).sum(axis=2)
+    if normalise is None:
+        frame = linearize_camera(capture(pattern), camera_gamma).sum(axis=2)
+    else:
+        frame = np.nan_to_num(normalise(capture(pattern)), nan=0.0)
     img, seen = to_projector(calib, frame)
     w = half - 2
     radii = np.full(len(pts), np.nan)

@@ -1,0 +1,92 @@
+"""Camera exposure checks of the radiometry stage: over- and under-exposure of the white frame,
+and exposure / white-balance drift between two white frames taken apart in time.
+
+A webcam's auto-exposure and auto white balance change its gain while the patterns change
+(a dark dot pattern after a white frame brightens the next frames), which bends every ratio
+the calibration measures. These checks stop the calibration early with the fix, rather than
+letting it fail, or succeed wrongly, deep inside a stage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import CalibrationError
+from .camera_response import linearize
+
+# Fraction of the lit area allowed to clip on the white frame before it is an error.
+_CLIP_FRACTION = 0.05
+# The white frame's bright end (95th percentile over the lit area, brightest channel) must
+# reach this code; below it the dots drown in the camera's noise and quantisation.
+_MIN_WHITE_CODE = 64.0
+# Relative change of the white frame (median over the lit area, any channel) that is drift.
+DRIFT_TOLERANCE = 0.02
+
+_LOCK_HINT = ("Lock the camera's auto-exposure and auto white balance (docs/hardware.md, "
+              "'Lock the camera': e.g. v4l2-ctl on Linux, or the camera's own settings app), "
+              "then calibrate again")
+
+
+def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,
+                   black: np.ndarray | None = None) -> None:
+    """Raise :class:`CalibrationError` when the white frame (camera codes, (Hc, Wc, 3)) clips
+    on more than 5 % of the ``lit`` camera pixels (lower the exposure) or stays dim (raise it).
+
+    With ``black``, a white frame hardly above the black one on most of the lit area is its
+    own error (the projector is off or the camera looks elsewhere: no exposure fixes that).
+    """
+    m = np.asarray(lit, bool)
+    w = np.asarray(white, np.float32)[m]
+    if len(w) == 0:
+        return
+    if black is not None:
+        above = (w - np.asarray(black, np.float32)[m]).max(axis=1) > 4.0
+        if above.mean() < 0.25:
+            raise CalibrationError(
+                f"the white frame is brighter than the black one on only {100 * above.mean():.0f}% "
+                "of the lit camera pixels: is the projector on, the camera pointed at the surface, "
+                "and the geometry calibration right?")
+    clipped = float((w >= saturated).any(axis=1).mean())
+    if clipped > _CLIP_FRACTION:
+        raise CalibrationError(
+            f"the camera is over-exposed: the projector's white frame clips at {100 * clipped:.0f}% "
+            "of the lit pixels. Lower the camera's exposure or gain (or the projector's "
+            "brightness) until the white is bright but not clipped, then calibrate again")
+    top = float(np.percentile(w.max(axis=1), 95))
+    if top < _MIN_WHITE_CODE:
+        raise CalibrationError(
+            f"the camera is under-exposed: the projector's white frame reaches only code "
+            f"{top:.0f} of 255. Raise the camera's exposure or gain until the white is bright "
+            "but not clipped, then calibrate again")
+
+
+def drift(first: np.ndarray, later: np.ndarray, black: np.ndarray, lit: np.ndarray,
+          camera_lut=1.0) -> np.ndarray:
+    """(3,) relative change per channel of the white frame ``later`` against ``first`` (camera
+    codes), in camera-linear light above ``black``: the median over the ``lit`` pixels whose
+    white is clearly above black and not clipped."""
+    b = linearize(black, camera_lut)
+    f = linearize(first, camera_lut) - b
+    g = linearize(later, camera_lut) - b
+    m = np.asarray(lit, bool) & (f.min(axis=2) > 0.05) & (np.maximum(first, later).max(axis=2) < 250)
+    if m.sum() < 100:
+        return np.zeros(3)
+    return np.array([float(np.median(g[..., c][m] / f[..., c][m])) - 1.0 for c in range(3)])
+
+
+def check_drift(first: np.ndarray, later: np.ndarray, black: np.ndarray, lit: np.ndarray,
+                camera_lut=1.0, *, stage: str = "radiometry",
+                tolerance: float = DRIFT_TOLERANCE) -> np.ndarray:
+    """Raise :class:`CalibrationError` naming the fix when the white frame changed by more than
+    ``tolerance`` (any channel) between ``first`` and ``later``; returns the change (3,)."""
+    d = drift(first, later, black, lit, camera_lut)
+    worst = int(np.argmax(np.abs(d)))
+    if abs(d[worst]) > tolerance:
+        what = "exposure" if np.all(np.sign(d) == np.sign(d[worst])) and \
+            np.ptp(d) < 0.5 * abs(d[worst]) else "white balance"
+        raise CalibrationError(
+            f"the camera's {what} changed during the {stage} stage: the same white frame came "
+            f"out {100 * d[worst]:+.1f}% ({'RGB'[worst]} channel; R/G/B "
+            f"{', '.join(f'{100 * v:+.1f}%' for v in d)}) at its end than at its start. "
+            + _LOCK_HINT)
+    return d

@@ -1,0 +1,281 @@
+"""Ordinary webcams in ordinary rooms (issue 11): the simulator's webcam presets, the camera's
+response recovered from captures alone, calibration on a lit, textured set-up, faint dots,
+and the calibration file's camera fields."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import numpy as np
+import pytest
+from calib_presets import fold_distance, kernel_errors
+
+import rtdefocus as rd
+from rtdefocus import sim
+from rtdefocus.calib.camera_response import (
+    fit_inverse_response,
+    known_response,
+    linear_to_srgb,
+    linearize,
+    split_pattern,
+    srgb_to_linear,
+)
+from rtdefocus.calib.file import Calibration
+from rtdefocus.calib.planar import apply_h, distort_points, undistort_points
+from rtdefocus.calib.psf import fill_skipped
+from rtdefocus.calib.psf.layout import SamplePlan
+from rtdefocus.calib.radiometry import DEFAULT_LEVELS, ramp_pattern
+from rtdefocus.errors import CalibrationError, InputError
+
+SMALL = {"projector_size": (320, 240), "camera_size": (480, 360)}
+# Inverse-response error is measured over codes 0.05..0.95 of full scale (the issue's range).
+CODES = slice(13, 243)
+
+
+# --------------------------------------------------------------------------- the simulator
+def test_srgb_round_trip_and_known_responses():
+    x = np.linspace(0, 1, 1001)
+    assert np.abs(srgb_to_linear(linear_to_srgb(x)) - x).max() < 1e-12
+    assert abs(float(srgb_to_linear(0.5)) - 0.21404) < 1e-4           # the standard's value
+    assert np.allclose(known_response("linear")[1], np.arange(256) / 255.0)
+    assert np.allclose(linearize(np.array([0.0, 127.5, 255.0]), known_response("srgb")),
+                       [0.0, (srgb_to_linear(127 / 255) + srgb_to_linear(128 / 255)) / 2, 1.0],
+                       atol=1e-6)
+    with pytest.raises(InputError, match="camera_response must be one of"):
+        known_response("log")
+
+
+def test_webcam_preset_combines_the_room_and_the_camera():
+    pc = sim.VirtualProCam("webcam_pillar", **SMALL)
+    t = pc.truth
+    assert pc.scene == sim.PRESETS["pillar"] and pc.preset == "webcam_pillar"
+    assert t.camera_response_kind == "srgb" and t.distortion == (-0.05, 0.0)
+    assert np.allclose(t.camera_response, srgb_to_linear(np.arange(256) / 255.0), atol=1e-6)
+    assert (pc.projector_gamma, pc.ambient, pc.texture, pc.aperture) == (2.2, 0.05, 0.05, "hex")
+    # an explicit argument wins over the preset, even when it is the plain default
+    plain = sim.VirtualProCam("webcam", distortion=(0.0, 0.0), noise=0.006, **SMALL)
+    assert plain.truth.distortion == (0.0, 0.0) and plain.noise == 0.006
+    with pytest.raises(InputError, match="unknown webcam scene"):
+        sim.VirtualProCam("webcam_attic", **SMALL)
+    # a sharp mid-gray capture is sRGB-encoded: decoding it gives the linear model's value
+    p = sim.VirtualProCam("webcam", noise=0.0, texture=0.0, distortion=(0.0, 0.0), **SMALL)
+    frame = p.capture(np.full((240, 320, 3), 128, np.uint8), sharp=True)
+    lit = p.truth.extra["camera_in_frame"]
+    white = p.capture(np.full((240, 320, 3), 255, np.uint8), sharp=True)
+    black = p.capture(np.zeros((240, 320, 3), np.uint8), sharp=True)
+    lin = [srgb_to_linear(f[lit][:, 1] / 255.0) for f in (frame, white, black)]
+    ratio = np.median((lin[0] - lin[2]) / (lin[1] - lin[2]))
+    assert abs(ratio - (128 / 255) ** 2.2) < 0.01, ratio
+
+
+def test_distortion_moves_camera_points_as_the_model_says():
+    """A projector dot lands where the ideal homography puts it, then radially distorted."""
+    pc = sim.VirtualProCam("cubicle", noise=0.0, distortion=(-0.05, 0.0), **SMALL)
+    t = pc.truth
+    errs, shifts = [], []
+    for x, y in ((40, 40), (280, 40), (40, 200), (280, 200), (100, 120)):
+        pat = np.zeros((240, 320, 3), np.uint8)
+        pat[y - 1:y + 2, x - 1:x + 2] = 255
+        img = pc.capture(pat, sharp=True)[..., 1].astype(np.float64)
+        img -= np.median(img)
+        img[img < 0.3 * img.max()] = 0
+        ys, xs = np.mgrid[0:img.shape[0], 0:img.shape[1]]
+        seen = np.array([(img * xs).sum(), (img * ys).sum()]) / img.sum()
+        plane = int(t.plane_map[y, x])
+        ideal = apply_h(t.H_cam_from_proj[plane], [[x, y]])[0]
+        errs.append(np.linalg.norm(seen - distort_points(ideal, t.distortion, pc.camera_size)))
+        shifts.append(np.linalg.norm(seen - ideal))
+    # measured: <= 0.1 px against the model, 2.5..6 px against the ideal pinhole at the corners
+    assert max(errs) < 0.3, errs
+    assert max(shifts) > 2.0, shifts
+    p = np.random.default_rng(0).uniform(0, 480, (100, 2))
+    assert np.abs(undistort_points(distort_points(p, (-0.05, 0.01), (480, 360)), (-0.05, 0.01),
+                                   (480, 360)) - p).max() < 1e-6
+
+
+def test_exposure_drift_changes_the_gain_capture_by_capture():
+    pc = sim.VirtualProCam("cubicle", noise=0.0, exposure_drift=0.01, exposure=0.5, **SMALL)
+    pat = np.full((240, 320, 3), 128, np.uint8)
+    first = pc.capture(pat).astype(np.float64)
+    for _ in range(9):
+        later = pc.capture(pat).astype(np.float64)
+    lit = pc.truth.extra["camera_in_frame"] & (first[..., 1] > 40)
+    gain = float(np.median(later[lit][:, 1] / first[lit][:, 1]))
+    assert 1.07 < gain < 1.13, gain          # exp(9 × 0.01) ≈ 1.094, 10 % jitter per step
+    still = sim.VirtualProCam("cubicle", noise=0.0, **SMALL)
+    assert np.array_equal(still.capture(pat), still.capture(pat))
+
+
+# --------------------------------------------------------------------------- camera response
+def _superposition(pc, n=2):
+    ab, _ = ramp_pattern(pc.projector_size, DEFAULT_LEVELS)
+    a, b = split_pattern(ab)
+    assert not np.any((a > 0) & (b > 0)) and np.array_equal(a.astype(int) + b, ab)
+
+    def mean(p, k=n):
+        return np.mean([pc.capture(p) for _ in range(k)], axis=0)
+
+    return mean(np.zeros_like(ab), 3), mean(a), mean(b), mean(ab)
+
+
+@pytest.mark.parametrize("kw, tol", [
+    ({"preset": "webcam"}, 0.015),                                   # measured 0.005
+    ({"preset": "cubicle", "camera_gamma": 1.8, "projector_gamma": 2.2}, 0.01),   # 0.002
+    ({"preset": "cubicle", "projector_gamma": 2.2}, 0.01),                         # 0.001
+], ids=["webcam-srgb", "gamma-1.8", "linear"])
+def test_camera_response_recovered_from_superposition(kw, tol):
+    pc = sim.VirtualProCam(**kw)
+    lut, info = fit_inverse_response(*_superposition(pc), pc.truth.extra["camera_in_frame"])
+    err = np.abs(lut[:, CODES] - pc.truth.camera_response[CODES]).max()
+    assert err < tol, (err, info)
+    assert np.all(np.diff(lut, axis=1) >= 0) and np.allclose(lut[:, [0, 255]], [0, 1])
+
+
+def test_camera_response_needs_light():
+    dark = np.zeros((60, 80, 3))
+    with pytest.raises(CalibrationError, match="camera_response='srgb'"):
+        fit_inverse_response(dark, dark, dark, dark, np.ones((60, 80), bool))
+
+
+# --------------------------------------------------------------------------- faint dots
+def _plan(n_plane0=5):
+    pts = np.array([[10 + 20 * i, 50] for i in range(n_plane0)] + [[300, 50], [320, 50],
+                                                                   [340, 50], [360, 50]])
+    planes = np.array([0] * n_plane0 + [1] * 4)
+    return SamplePlan("default", False, pts, planes, np.array(["corner"] * len(pts)),
+                      np.linspace(2, 3, len(pts)))
+
+
+def test_faint_dots_are_filled_from_their_own_plane():
+    plan = _plan()
+    raw = np.zeros((len(plan), 5, 5), np.float32)
+    raw[:5, 2, 2] = 1.0             # plane 0: deltas
+    raw[5:] = 1.0 / 25              # plane 1: boxes
+    skipped = np.zeros(len(plan), bool)
+    skipped[[2, 6]] = True
+    raw[[2, 6]] = 0.0
+    fill_skipped(raw, plan, skipped)
+    assert raw[2, 2, 2] == pytest.approx(1.0) and raw[2].sum() == pytest.approx(1.0)
+    assert np.allclose(raw[6], 1.0 / 25)
+
+
+def test_too_few_measured_dots_on_a_plane_is_reported():
+    plan = _plan(3)
+    raw = np.ones((len(plan), 5, 5), np.float32)
+    skipped = np.zeros(len(plan), bool)
+    skipped[0] = True
+    with pytest.raises(CalibrationError, match="only 2 of 3 PSF dots on plane 0.*Darken the room"):
+        fill_skipped(raw, plan, skipped)
+
+
+# --------------------------------------------------------------------------- end to end
+@functools.cache
+def _webcam_calibration():
+    """The webcam preset without lens distortion (the distortion stage is not built yet)."""
+    pc = sim.VirtualProCam("webcam", distortion=(0.0, 0.0))
+    return pc, rd.calibrate(pc)
+
+
+def test_calibration_on_a_webcam_in_a_lit_room():
+    """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
+    aperture: calibration passes and recovers the camera, the projector and the kernels."""
+    pc, calib = _webcam_calibration()
+    t = pc.truth
+    assert calib.meta["radiometry"]["camera_response"] == "auto"
+    cam_err = np.abs(calib.camera_lut[:, CODES] - t.camera_response[CODES]).max()
+    assert cam_err < 0.03, cam_err                                  # measured 0.005
+    gammas = np.array(calib.meta["radiometry"]["gamma"])
+    assert np.abs(gammas / t.projector_gamma - 1).max() < 0.03, gammas     # measured 0.6 %
+    a, b, c = t.fold_proj
+    ys = np.array([0.0, 599.0])
+    fold_err = np.abs(calib.fold_proj[0] * (-(b * ys + c) / a) + calib.fold_proj[1] * ys
+                      + calib.fold_proj[2]).max()
+    assert fold_err < 1.0, fold_err                                  # measured 0.01
+    rng = np.random.default_rng(7)
+    xy = np.column_stack([rng.integers(0, 800, 1200), rng.integers(0, 600, 1200)])
+    interior = xy[fold_distance(t, xy.astype(float)) > 12][:200]
+    err = np.median(kernel_errors(calib, t, interior))
+    assert err <= 0.20, err                                          # measured 0.095
+    # Near the fold (a concave corner): points on the fold moved up to 12 px along its normal.
+    ys = rng.uniform(0, 599, 300)
+    off = rng.uniform(-12, 12, 300)
+    near = np.rint(np.column_stack([-(b * ys + c) / a + off * a, ys + off * b])).astype(int)
+    near = near[(near[:, 0] >= 0) & (near[:, 0] < 800) & (near[:, 1] >= 0) & (near[:, 1] < 600)]
+    err_fold = np.median(kernel_errors(calib, t, near[:150]))
+    assert err_fold <= 0.25, err_fold                                # measured 0.14
+
+
+def _radiometry(**kw):
+    """The radiometry stage alone on the true geometry of a small webcam set-up."""
+    from calib_presets import truth_geometry
+
+    from rtdefocus.calib.capture import Capturer
+    from rtdefocus.calib.radiometry import calibrate_radiometry
+
+    pc = sim.VirtualProCam("webcam", distortion=(0.0, 0.0), **kw, **SMALL)
+    calib = truth_geometry(pc)
+    return calibrate_radiometry(pc, calib, capture=Capturer(pc))
+
+
+def test_exposure_drift_is_reported_with_the_fix():
+    """An auto-exposure that could not be locked: the white frame taken at the start of the
+    radiometry stage and the one taken at its end disagree (exp(0.003 x 6) ~ +2 %)."""
+    steady = _radiometry()
+    assert np.abs(steady.meta["radiometry"]["white_drift"]).max() < 0.005
+    with pytest.raises(CalibrationError, match=r"exposure changed during the radiometry.*"
+                                               r"Lock the camera's auto-exposure"):
+        _radiometry(exposure_drift=0.003)
+
+
+@pytest.mark.parametrize("exposure, match", [
+    (3.0, r"over-exposed.*Lower the camera's exposure"),
+    (0.02, r"under-exposed.*Raise the camera's exposure"),
+])
+def test_exposure_out_of_range_says_which_way_to_turn_it(exposure, match):
+    with pytest.raises(CalibrationError, match=match):
+        _radiometry(exposure=exposure)
+
+
+def test_calibration_file_keeps_the_camera_and_reads_version_1(tmp_path):
+    _, calib = _webcam_calibration()
+    path = calib.save(tmp_path / "webcam.npz")
+    back = Calibration.load(path)
+    assert np.array_equal(back.camera_lut, calib.camera_lut)
+    assert "camera" in back.sections()
+    with np.load(path, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    meta = json.loads(str(data["meta"]))
+    meta["format_version"] = 1
+    data["meta"] = np.array(json.dumps(meta))
+    data.pop("camera_lut")
+    np.savez(tmp_path / "v1.npz", **data)
+    old = Calibration.load(tmp_path / "v1.npz")
+    assert old.camera_lut is None and old.camera_distortion is None
+    assert np.array_equal(old.psfs, calib.psfs)
+
+
+# --------------------------------------------------------------------------- lens distortion
+def test_radial_k1_from_straight_lines_on_each_plane():
+    """Crossings of a plane seen through a barrel lens: k1 is what makes them a homography."""
+    from rtdefocus.calib.homography import estimate_radial_k1
+
+    size = (640, 480)
+    gx, gy = np.meshgrid(np.arange(20, 400, 25.0), np.arange(20, 300, 25.0))
+    proj = np.column_stack([gx.ravel(), gy.ravel()])
+    sets = []
+    for H in (np.array([[1.2, 0.1, 30], [0.02, 1.1, 40], [1e-4, 2e-4, 1]]),
+              np.array([[0.9, -0.1, 200], [0.05, 1.2, 20], [-2e-4, 1e-4, 1]])):
+        cam = distort_points(apply_h(H, proj), (-0.08, 0.0), size)
+        sets.append((proj, cam))
+    k1, rms, rms0 = estimate_radial_k1(sets, size)
+    assert abs(k1 + 0.08) < 0.002 and rms < 0.01 < rms0, (k1, rms, rms0)
+
+
+@pytest.mark.parametrize("k1", [-0.05, 0.0])
+def test_geometry_reports_the_lens_k1(k1):
+    from rtdefocus.calib.geometry import calibrate_geometry
+
+    pc = sim.VirtualProCam("webcam", distortion=(k1, 0.0), **SMALL)
+    d = calibrate_geometry(pc).meta["geometry"]["distortion"]
+    assert abs(d["k1"] - k1) < 0.01, d
