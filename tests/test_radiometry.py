@@ -77,9 +77,10 @@ def test_albedo_is_white_minus_black_at_the_frame_edge():
 
 def test_captures_counted():
     calib = calibrated("cubicle").calib
-    # 3 black + 2 white + the ramp and its two halves (camera response by superposition,
-    # camera_response="auto"), each averaged over response_frames = 2
-    assert calib.meta["captures"]["radiometry"] == 11
+    # 3 black + 2 white; the camera's response (camera_response="auto", by superposition): the
+    # ramp and its two halves, each averaged over response_frames = 2, counted as its own stage
+    assert calib.meta["captures"]["radiometry"] == 5
+    assert calib.meta["captures"]["camera response"] == 6
     assert calib.meta["radiometry"]["captures"] == 11
 
 

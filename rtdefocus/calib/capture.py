@@ -44,12 +44,18 @@ class Capturer:
     def total(self) -> int:
         return sum(self.counts.values())
 
-    def begin(self, stage: str, expected: int) -> None:
-        """Start a stage that will take about ``expected`` captures (for the progress bar)."""
-        self.stage, self._done, self._total = stage, 0, expected
+    @property
+    def stage_done(self) -> int:
+        """Captures made since the current stage began (for resuming it with :meth:`begin`)."""
+        return self._done
+
+    def begin(self, stage: str, expected: int, done: int = 0) -> None:
+        """Start (or, with ``done``, resume) a stage that will take about ``expected`` captures
+        (for the progress bar)."""
+        self.stage, self._done, self._total = stage, done, expected
         self.counts.setdefault(stage, 0)
         if self.progress:
-            self.progress(stage, 0, expected)
+            self.progress(stage, done, expected)
 
     def __call__(self, pattern: np.ndarray) -> np.ndarray:
         pattern = check_pattern(pattern, self.procam.projector_size)

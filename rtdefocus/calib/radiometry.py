@@ -326,8 +326,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     wp, hp = calib.projector_size
     n_ramp = 1 if ramp_layout == "patches" else len(levels)
     auto = camera_response == "auto" and camera_gamma == 1.0
-    capture.begin("radiometry", black_frames + white_frames + n_ramp
-                  + (3 * response_frames - (1 if ramp_layout == "patches" else 0) if auto else 0))
+    capture.begin("radiometry", black_frames + white_frames + n_ramp)
 
     black_pat = np.zeros((hp, wp, 3), np.uint8)
     white_pat = np.full((hp, wp, 3), 255, np.uint8)
@@ -348,12 +347,17 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     elif not auto:
         cam_lut, kind = known_response(camera_response), camera_response
     else:
+        # The camera's response is a calibration of its own (a linear camera needs none):
+        # its captures are counted apart, as the stage "camera response".
+        radiometry_done = capture.stage_done
+        capture.begin("camera response", 3 * response_frames)
         pat_a, pat_b = split_pattern(ramp_pat)
         ramp_c = mean_frame(capture, "ramp", ramp_pat, response_frames)
         a_c = mean_frame(capture, "ramp_a", pat_a, response_frames)
         b_c = mean_frame(capture, "ramp_b", pat_b, response_frames)
         cam_lut, response_info = fit_inverse_response(black_c, a_c, b_c, ramp_c, in_view)
         kind = "auto"
+        capture.begin("radiometry", black_frames + white_frames + n_ramp, done=radiometry_done)
     calib.camera_lut = cam_lut
     camera_gamma = cam_lut                              # what linearize_camera uses below
     if ramp_layout == "patches" and ramp_c is None:
@@ -451,7 +455,8 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         "ratios": np.round(ratios[:, ok], 5).tolist(),
         "seen_fraction": round(float(seen.mean()), 4),
         "lit_fraction": round(float(lit.mean()), 4),
-        "captures": int(capture.counts.get("radiometry", 0)),
+        "captures": int(capture.counts.get("radiometry", 0)
+                        + capture.counts.get("camera response", 0)),
     }
     return calib
 
