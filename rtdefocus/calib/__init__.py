@@ -12,7 +12,7 @@ from ..checks import check_procam
 from ..errors import CalibrationError, InputError, InputTypeError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
-from .diagnose import explain
+from .diagnose import explain, view_warning
 from .file import Calibration
 from .geometry import GeometryOptions, calibrate_geometry
 from .psf import PsfOptions, calibrate_psf
@@ -113,6 +113,10 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         timings[name] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
+    warning = view_warning(cap)
+    if warning:
+        log.warning("calibration done, but %s", warning)
+        calib.meta["warnings"] = [warning]
     log.info("calibration done: %d captures %s, %s", cap.total, cap.counts, calib.meta["seconds"])
     return calib
 

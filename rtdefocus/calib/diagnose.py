@@ -103,6 +103,12 @@ def find_cause(capture: Capturer) -> Cause | None:
                     "captured at the start, with no shift. Keep the room lights and daylight "
                     "steady, lock the camera's exposure, gain and white balance, let the "
                     "projector warm up, and calibrate again"), details)
+    return partial_view(lit)
+
+
+def partial_view(lit: np.ndarray) -> Cause | None:
+    """The ``"partial-view"`` cause when the lit area (camera-sized bool mask) runs off the
+    camera frame's edges, else None."""
     edges = {"top": lit[:2].mean(), "bottom": lit[-2:].mean(), "left": lit[:, :2].mean(),
              "right": lit[:, -2:].mean()}
     cut = [name for name, share in edges.items() if share > EDGE_LIT]
@@ -115,6 +121,17 @@ def find_cause(capture: Capturer) -> Cause | None:
             "out, until the whole projected area is inside the frame with a margin, and "
             "calibrate again"), {"edges_lit": {k: round(float(v), 4) for k, v in edges.items()}})
     return None
+
+
+def view_warning(capture: Capturer) -> str | None:
+    """After a calibration that succeeded: a warning when its first white frame shows the
+    projection running off the camera frame (no capture needed). Lost dots near the edge were
+    filled from their neighbours and the display rectangle stays inside what the camera saw,
+    but the user should know."""
+    if capture.first_white is None or capture.first_black is None:
+        return None
+    cause = partial_view(_lit(_gray(capture.first_white), _gray(capture.first_black)))
+    return None if cause is None else cause.message
 
 
 def explain(error: CalibrationError, capture: Capturer, stage: str) -> CalibrationError:
