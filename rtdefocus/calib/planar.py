@@ -292,15 +292,18 @@ def largest_inscribed_rect(polygon: np.ndarray, aspect: float, camera_size: tupl
     return x, y, w, h
 
 
-# --------------------------------------------------------------------------- the stage
-
-
 # --------------------------------------------------------------------------- lens distortion
 def distortion_scale(camera_size: tuple[int, int]) -> tuple[float, float, float]:
     """Centre (cx, cy) and radius normalisation of the radial distortion model: the image
     centre, and half the frame diagonal (r = 1 at the corners)."""
     wc, hc = camera_size
     return (wc - 1) / 2.0, (hc - 1) / 2.0, 0.5 * math.hypot(wc, hc)
+
+
+def _radial_frame(pts_xy, k, camera_size):
+    """Points as float64, (k1, k2) as floats, and the model's centre and scale."""
+    k1, k2 = (float(v) for v in k)
+    return np.asarray(pts_xy, dtype=np.float64), k1, k2, distortion_scale(camera_size)
 
 
 def distort_points(pts_xy: np.ndarray, k: tuple[float, float] | np.ndarray,
@@ -310,11 +313,9 @@ def distort_points(pts_xy: np.ndarray, k: tuple[float, float] | np.ndarray,
     ``x_obs = c + (x - c)(1 + k1 r² + k2 r⁴)`` with r = |x - c| / (half diagonal), c the image
     centre (:func:`distortion_scale`). ``pts_xy`` (..., 2); returns float64 of the same shape.
     """
-    p = np.asarray(pts_xy, dtype=np.float64)
-    k1, k2 = (float(v) for v in k)
+    p, k1, k2, (cx, cy, s) = _radial_frame(pts_xy, k, camera_size)
     if k1 == 0.0 and k2 == 0.0:
         return p.copy()
-    cx, cy, s = distortion_scale(camera_size)
     dx, dy = (p[..., 0] - cx) / s, (p[..., 1] - cy) / s
     r2 = dx * dx + dy * dy
     f = 1.0 + k1 * r2 + k2 * r2 * r2
@@ -325,11 +326,9 @@ def undistort_points(pts_xy: np.ndarray, k: tuple[float, float] | np.ndarray,
                      camera_size: tuple[int, int], iterations: int = 12) -> np.ndarray:
     """Observed camera pixels -> ideal (pinhole) pixels: the inverse of :func:`distort_points`
     (fixed-point iteration; exact to ~1e-6 px for |k1|, |k2| < 0.3)."""
-    p = np.asarray(pts_xy, dtype=np.float64)
-    k1, k2 = (float(v) for v in k)
+    p, k1, k2, (cx, cy, s) = _radial_frame(pts_xy, k, camera_size)
     if k1 == 0.0 and k2 == 0.0:
         return p.copy()
-    cx, cy, s = distortion_scale(camera_size)
     dx, dy = (p[..., 0] - cx) / s, (p[..., 1] - cy) / s
     ux, uy = dx.copy(), dy.copy()
     for _ in range(iterations):
