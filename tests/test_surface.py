@@ -64,13 +64,18 @@ def test_scaled_distance_and_gradient(case):
     assert slope == pytest.approx(np.vdot(fs.astype(np.float64), q), rel=1e-5)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_cl_scaled_metric_matches_numpy(cl_runtime, case, variant):
+def _scaled_twins(cl_runtime, field, scale, variant):
+    """The NumPy reference ops and the OpenCL ops of one scaled kernel field."""
     from rtdefocus.cl.solve import ClSolveOps
 
+    return (NumpyOps(*field, METRIC, scale=scale),
+            ClSolveOps(cl_runtime, *field, METRIC, blur_variant=variant, scale=scale))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_cl_scaled_metric_matches_numpy(cl_runtime, case, variant):
     field, target, P, scale = case
-    ref = NumpyOps(*field, METRIC, scale=scale)
-    ops = ClSolveOps(cl_runtime, *field, METRIC, blur_variant=variant, scale=scale)
+    ref, ops = _scaled_twins(cl_runtime, field, scale, variant)
     assert ops.scale_max == ref.scale_max
     fp, tg, fs, q, out = (ops.new() for _ in range(5))
     ops.upload(P, fp)
@@ -131,11 +136,8 @@ def test_preconditioned_steps(case):
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_cl_preconditioned_steps_match_numpy(cl_runtime, case, variant):
-    from rtdefocus.cl.solve import ClSolveOps
-
     field, _, P, scale = case
-    ref = NumpyOps(*field, METRIC, scale=scale)
-    ops = ClSolveOps(cl_runtime, *field, METRIC, blur_variant=variant, scale=scale)
+    ref, ops = _scaled_twins(cl_runtime, field, scale, variant)
     assert ops.lipschitz_factor == ref.lipschitz_factor
     assert_close(ops.precond, ref.precond, 1e-6, "preconditioner")
     rng = np.random.default_rng(6)
