@@ -199,6 +199,10 @@ class Solver:
     def target_changed(self) -> None:
         """Call after writing ``self.target`` directly (e.g. ``ops.decode``): what was known
         about P (its distance, gradient, momentum) no longer holds."""
+        self._forget_p()
+
+    def _forget_p(self) -> None:
+        """P or the target changed: its distance, gradient and momentum are unknown."""
         self._d = None
         self._grad_ready = False
         self.reset_momentum()
@@ -210,9 +214,7 @@ class Solver:
     def start_from_target(self) -> None:
         """``P = clamp(target)`` on the backend (the cold start, P_0 = I_ip)."""
         self.ops.clamp_copy(self.target, self.P)
-        self._d = None
-        self._grad_ready = False
-        self.reset_momentum()
+        self._forget_p()
 
     def set_start(self, P0: np.ndarray) -> None:
         """Start the next :meth:`run` from ``clamp(P0)`` (host ``(3, H, W)``), without momentum."""
@@ -220,9 +222,7 @@ class Solver:
         if P0.shape != self.shape:
             raise InputError(f"P0 must be {self.shape}; got {P0.shape}")
         self.ops.upload(np.clip(P0, 0.0, 1.0), self.P)
-        self._d = None
-        self._grad_ready = False
-        self.reset_momentum()
+        self._forget_p()
 
     def keep_better_than_cold(self) -> tuple[bool, float, float]:
         """Keep the current start P only if it is at least as close as the cold start.
