@@ -9,8 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from rtdefocus.calib.file import FORMAT_VERSION, Calibration
-from rtdefocus.errors import CalibrationFileError
+from rtdefocus.calib.file import FORMAT_VERSION, Calibration, content_digest
+from rtdefocus.calib.planar import PlaneLayout
+from rtdefocus.errors import CalibrationFileError, InputError
 
 WP, HP = 41, 29          # small odd projector: the file logic does not depend on size
 
@@ -36,13 +37,14 @@ def _calibration(seed: int = 0, planes: int = 2, full: bool = True) -> Calibrati
             pix_idx=rng.integers(0, n, (HP, WP, 4)).astype(np.int32),
             pix_wts=wts / wts.sum(axis=2, keepdims=True),
         )
-    return Calibration(projector_size=(WP, HP), camera_size=(64, 48), H_cam_from_proj=H,
+    return Calibration.with_fold(projector_size=(WP, HP), camera_size=(64, 48), H_cam_from_proj=H,
                        H_proj_from_cam=np.linalg.inv(H), fold_proj=fold, fold_cam=fold.copy(),
                        lit_polygon_cam=rng.random((6, 2)) * 40,
                        meta={"geometry": {"n_planes": planes, "rms_px": [0.03] * planes}}, **kw)
 
 
-ARRAYS = ["H_cam_from_proj", "H_proj_from_cam", "fold_proj", "fold_cam", "lit_polygon_cam",
+ARRAYS = ["H_cam_from_proj", "H_proj_from_cam", "folds_proj", "folds_cam", "fold_planes",
+          "lit_polygon_cam",
           "response_lut", "ambient_proj", "albedo_proj", "psf_points_proj", "psf_plane", "psfs",
           "pix_idx", "pix_wts"]
 
@@ -141,12 +143,12 @@ def _bad_files(good, tmp):
     out["projector-size-mismatch"] = (
         _rewrite(good, tmp / "size.npz", ambient_proj=np.zeros((HP + 1, WP, 3), np.float32)),
         "ambient_proj has shape")
-    out["missing-geometry"] = (_rewrite(good, tmp / "miss.npz", drop=["fold_cam"]),
-                               r"geometry section is incomplete, missing \['fold_cam'\]")
+    out["missing-geometry"] = (_rewrite(good, tmp / "miss.npz", drop=["folds_cam"]),
+                               r"geometry section is incomplete, missing \['folds_cam'\]")
     out["unknown-entry"] = (_rewrite(good, tmp / "unk.npz", roration=np.eye(3)),
                             r"unknown entries \['roration'\]")
-    out["nan"] = (_rewrite(good, tmp / "nan.npz", fold_proj=np.array([np.nan, 0.0, 1.0])),
-                  "fold_proj contains NaN")
+    out["nan"] = (_rewrite(good, tmp / "nan.npz", folds_proj=np.array([[np.nan, 0.0, 1.0]])),
+                  "folds_proj contains NaN")
     out["three-planes"] = (_rewrite(good, tmp / "three.npz", H_cam_from_proj=np.tile(np.eye(3), (3, 1, 1)),
                                     H_proj_from_cam=np.tile(np.eye(3), (3, 1, 1))), "3 planes")
     out["bad-meta-json"] = (_rewrite(good, tmp / "json.npz", meta=np.array("{oops")),
@@ -273,8 +275,8 @@ def test_verify_false_loads_an_edited_file_with_a_warning(good_raw, tmp_path, ca
     np.testing.assert_array_equal(back.H_cam_from_proj, H)
     assert any("digest does not match" in r.getMessage() for r in caplog.records)
     # verify=False skips only the digest: a malformed file is still refused.
-    bad = _rewrite(path, tmp_path / "bad.npz", fold_proj=np.array([np.nan, 0.0, 1.0]))
-    with pytest.raises(CalibrationFileError, match="fold_proj contains NaN"):
+    bad = _rewrite(path, tmp_path / "bad.npz", folds_proj=np.array([[np.nan, 0.0, 1.0]]))
+    with pytest.raises(CalibrationFileError, match="folds_proj contains NaN"):
         Calibration.load(bad, verify=False)
 
 
@@ -342,3 +344,58 @@ def test_missing_file_names_both_spellings(tmp_path):
     with pytest.raises(CalibrationFileError, match=r"'.*nothing' nor '.*nothing\.npz' does not "
                                                    r"exist"):
         Calibration.load(tmp_path / "nothing")
+
+
+# --------------------------------------------------------------------------- planes and versions
+def _three_planes() -> Calibration:
+    """A U of three planes (folds at x = 12.5 and 27.5), geometry only."""
+    H = np.stack([np.eye(3)] * 3)
+    folds = np.array([[1.0, 0.0, -12.5], [1.0, 0.0, -27.5]])
+    return Calibration(projector_size=(WP, HP), camera_size=(64, 48), H_cam_from_proj=H,
+                       H_proj_from_cam=H.copy(), folds_proj=folds, folds_cam=folds.copy(),
+                       fold_planes=np.array([[0, 1], [1, 2]], np.int32),
+                       lit_polygon_cam=np.array([[0.0, 0], [40, 0], [40, 28], [0, 28]]))
+
+
+def test_three_planes_round_trip(tmp_path):
+    calib = _three_planes()
+    back = Calibration.load(calib.save(tmp_path / "u.npz"))
+    assert back.n_planes == 3 and back.layout == calib.layout
+    assert back.plane_of(np.array([5.0, 20.0, 35.0]), np.array([3.0, 3.0, 3.0])).tolist() == [0, 1, 2]
+    with pytest.raises(InputError, match="calib.layout"):
+        _ = back.fold_proj
+
+
+def test_folds_that_do_not_describe_the_planes_are_a_clear_error(tmp_path):
+    path = _three_planes().save(tmp_path / "u.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    meta = json.loads(str(data.pop("meta")))
+    data["fold_planes"] = np.array([[0, 1], [1, 5]], np.int32)      # no plane 5
+    meta["sha256"] = content_digest(meta, data)                      # a consistent file
+    np.savez(tmp_path / "bad.npz", meta=np.array(json.dumps(meta)), **data)
+    with pytest.raises(CalibrationFileError, match="folds do not describe 3 planes.*recalibrate"):
+        Calibration.load(tmp_path / "bad.npz")
+
+
+@pytest.mark.parametrize("planes", [1, 2])
+def test_a_format_2_file_still_loads(tmp_path, planes):
+    """Format 2 stored one fold line (zeros for one plane): it loads as the same layout."""
+    calib = _calibration(planes=planes)
+    path = calib.save(tmp_path / "v3.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        data = {k: npz[k] for k in npz.files}
+    meta = json.loads(str(data.pop("meta")))
+    meta["format_version"] = 2
+    for name in ("folds_proj", "folds_cam"):
+        folds = data.pop(name)
+        data[name[:4] + name[5:]] = folds[0] if len(folds) else np.zeros(3)
+    del data["fold_planes"]
+    meta["sha256"] = content_digest(meta, data)
+    np.savez(tmp_path / "v2.npz", meta=np.array(json.dumps(meta)), **data)
+    back = Calibration.load(tmp_path / "v2.npz")
+    assert back.n_planes == planes and back.layout == calib.layout
+    np.testing.assert_array_equal(back.fold_proj, calib.fold_proj)
+    ys, xs = np.mgrid[0:HP, 0:WP]
+    np.testing.assert_array_equal(back.plane_of(xs, ys), calib.plane_of(xs, ys))
+    assert PlaneLayout.from_fold(calib.fold_proj, planes) == back.layout

@@ -238,7 +238,7 @@ class _AsymmetricProCam:
 def test_measured_psf_is_the_dot_image_shifted_not_flipped(dot_size):
     procam = _AsymmetricProCam()
     H = procam.H
-    calib = Calibration(projector_size=procam.projector_size, camera_size=procam.camera_size,
+    calib = Calibration.with_fold(projector_size=procam.projector_size, camera_size=procam.camera_size,
                         H_cam_from_proj=H[None], H_proj_from_cam=np.linalg.inv(H)[None],
                         fold_proj=np.zeros(3), fold_cam=np.zeros(3),
                         lit_polygon_cam=np.array([[0, 0], [289, 0], [289, 214], [0, 214.0]]))

@@ -147,7 +147,7 @@ def test_projector_off_raises():
     procam = _DarkProCam()
     H = np.array([[1.25, 0, 0], [0, 1.25, 0], [0, 0, 1.0]])
     from rtdefocus.calib.file import Calibration
-    calib = Calibration(projector_size=procam.projector_size, camera_size=procam.camera_size,
+    calib = Calibration.with_fold(projector_size=procam.projector_size, camera_size=procam.camera_size,
                         H_cam_from_proj=H[None], H_proj_from_cam=np.linalg.inv(H)[None],
                         fold_proj=np.zeros(3), fold_cam=np.zeros(3),
                         lit_polygon_cam=np.array([[0, 0], [199, 0], [199, 149], [0, 149.0]]))

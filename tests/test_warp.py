@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from rtdefocus.calib.file import Calibration
+from rtdefocus.calib.planar import PlaneLayout
 from rtdefocus.errors import DeviceError, InputError
 from rtdefocus.reference.warp import warp_cv2, warp_lod, warp_maps
 
@@ -98,6 +99,80 @@ def test_gl_matches_cv2(gl, warper, name, planes):
     if "minify" in name:
         assert np.nanmax(lod) > 0.5 and warper.n_levels > 1
     assert ref[mask].mean() > 20, "test image landed outside the frame: the comparison is empty"
+
+
+def _many_planes(kind):
+    """Three planes that really meet: a U (two parallel-ish folds) or a trihedral corner
+    (three folds through one vertex). Each neighbour's homography is its neighbour's plus a
+    rank-one term that vanishes on their common fold, as for walls that touch."""
+    H0 = np.array([[1.10, 0.08, 20.0], [-0.03, 1.05, 15.0], [2e-4, -1e-4, 1.0]])
+
+    def line(nx, ny, x, y):
+        n = np.array([nx, ny]) / np.hypot(nx, ny)
+        return np.array([n[0], n[1], -(n[0] * x + n[1] * y)])
+
+    if kind == "u":
+        f01, f12 = line(1, 0.05, 70, 115), line(1, -0.08, 180, 115)
+        H1 = H0 + np.outer([0.2, -0.08, 1e-4], f01)
+        H2_ = H1 + np.outer([0.15, 0.05, 5e-5], f12)
+        layout = PlaneLayout(3, [f01, f12], [[0, 1], [1, 2]])
+    else:      # left wall 0, ceiling 1, right wall 2, vertex at (160, 90)
+        vx, vy = 160.0, 90.0
+        f02 = line(1, 0.0, vx, vy)                 # wall | wall, below the vertex
+        f10 = line(-1.0, 1.2, vx, vy)              # ceiling (negative) | left wall
+        f12 = line(1.0, 1.2, vx, vy)               # ceiling (negative) | right wall
+        k = np.array([0.15, 0.2, 1e-4])
+        H1 = H0 + np.outer(k, f10)
+        # H2 = H0 + k2 f02ᵀ meets H0 on f02; on f12 (through the vertex) f10 and f02 are both
+        # proportional to the distance from the vertex, so k2 = k f10/f02 there makes H2 meet
+        # H1 on f12 too.
+        d = np.array([1.2, -1.0])
+        k2 = k * (f10[:2] @ d) / (f02[:2] @ d)
+        H2_ = H0 + np.outer(k2, f02)
+        layout = PlaneLayout(3, [f02, f10, f12], [[0, 2], [1, 0], [1, 2]])
+    return np.stack([H0, H1, H2_]), layout
+
+
+@pytest.mark.parametrize("kind", ["u", "corner"])
+@pytest.mark.parametrize("name", ["noise-251x190-about-1to1", "coffee-600x400-minify"])
+def test_gl_matches_cv2_many_planes(gl, warper, kind, name):
+    """Any number of planes: the shader picks each pixel's homography as the reference does."""
+    img = IMAGES[name]
+    H, layout = _many_planes(kind)
+    out = warper.render(img, H, layout, RECT)
+    ref = warp_cv2(img, H, layout, RECT, PROJ)
+    _, _, valid = warp_maps(H, layout, RECT, (img.shape[1], img.shape[0]), PROJ)
+    k = np.ones((3, 3), np.uint8)
+    border = cv2.dilate(valid.astype(np.uint8), k) != cv2.erode(valid.astype(np.uint8), k)
+    ys, xs = np.mgrid[0:PROJ[1], 0:PROJ[0]]
+    near = np.zeros(xs.shape, bool)
+    for a, b, c in layout.folds:
+        near |= np.abs(a * xs + b * ys + c) < 1.0
+    mask = ~(border | near)
+    _assert_agree(out, ref, mask, f"{name}, {kind}")
+    # every plane is really used and has its own homography
+    labels = layout.label(xs, ys)
+    one = warp_cv2(img, H[:1], None, RECT, PROJ).astype(int)
+    for p in range(3):
+        sel = (labels == p) & mask & (ref.max(axis=2) > 0)
+        assert sel.sum() > 1000, f"plane {p} covers too little of the frame to test"
+        if p:
+            assert np.abs(ref[sel].astype(int) - one[sel]).mean() > 5, f"plane {p} not its own"
+
+
+def test_layout_labels_tile_the_frame():
+    """Labels: every pixel has exactly one plane; each plane's pixels lie on its side of its
+    folds (up to the vertex slack); two planes reproduce the single fold's rule."""
+    ys, xs = np.mgrid[0:PROJ[1], 0:PROJ[0]].astype(float)
+    for kind in ("u", "corner"):
+        _, layout = _many_planes(kind)
+        lab = layout.label(xs, ys)
+        assert set(np.unique(lab)) == {0, 1, 2}
+        for (a, b, c), (neg, pos) in zip(layout.folds, layout.fold_planes, strict=True):
+            v = a * xs + b * ys + c
+            assert (v[lab == neg] <= 1e-9).all() and (v[lab == pos] >= -1e-9).all()
+    two = PlaneLayout.from_fold(FOLD, 2).label(xs, ys)
+    assert np.array_equal(two, (FOLD[0] * xs + FOLD[1] * ys + FOLD[2] >= 0).astype(np.int8))
 
 
 def test_the_fold_matters(gl, warper):
@@ -221,7 +296,8 @@ BAD = {
     "singular": (np.array([[[1.0, 2, 3], [2, 4, 6], [0, 0, 1]]]), None, RECT, "singular"),
     "nan": (np.array([[[1.0, 0, np.nan], [0, 1, 0], [0, 0, 1]]]), None, RECT, "NaN"),
     "zeros": (np.zeros((1, 3, 3)), None, RECT, "singular"),
-    "three-planes": (np.stack([np.eye(3)] * 3), None, RECT, "n = 1 or 2"),
+    "three-planes-one-fold": (np.stack([H2[0]] * 3), FOLD, RECT, "PlaneLayout"),
+    "nine-planes": (np.stack([np.eye(3)] * 9), None, RECT, r"n = 1 \.\. 8"),
     "no-fold": (H2, None, RECT, "fold_proj"),
     "zero-fold": (H2, np.zeros(3), RECT, "fold_proj"),
     "empty-rect": (H2, FOLD, (0, 0, 0, 10), "rect"),
@@ -298,7 +374,7 @@ def _calibration(H, fold):
     w, h = PROJ
     border = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float64)
     pts = cv2.perspectiveTransform(border[None], H[0])[0]
-    return Calibration(projector_size=PROJ, camera_size=(400, 300), H_cam_from_proj=H,
+    return Calibration.with_fold(projector_size=PROJ, camera_size=(400, 300), H_cam_from_proj=H,
                        H_proj_from_cam=Hinv, fold_proj=fold, fold_cam=fold_cam,
                        lit_polygon_cam=pts)
 

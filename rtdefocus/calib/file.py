@@ -31,26 +31,34 @@ import numpy as np
 from .. import __version__
 from ..checks import check_coords, check_real, check_size
 from ..errors import CalibrationFileError, InputError
-from .planar import largest_inscribed_rect
+from .planar import MAX_PLANES, PlaneLayout, largest_inscribed_rect
 
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "rtdefocus-calibration"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: Versions :meth:`Calibration.load` reads: 1 (before the camera's response and lens
-#: distortion were recorded; both are then taken as ideal) and the current one.
-READABLE_VERSIONS = (1, 2)
+#: distortion were recorded; both are then taken as ideal), 2 (one fold line at most:
+#: ``fold_proj`` / ``fold_cam``, read as a layout of one or two planes) and the current one
+#: (any number of planes: ``folds_proj``, ``folds_cam``, ``fold_planes``).
+READABLE_VERSIONS = (1, 2, 3)
 #: meta key of the content digest (hex SHA-256, see :func:`content_digest`).
 DIGEST_KEY = "sha256"
 
 # name -> (dtype, shape template); "n" planes, "Hp"/"Wp" projector size, "N" PSFs, "k" kernel,
-# "m" polygon vertices. None entries in a template accept any size.
+# "m" polygon vertices, "f" folds. None entries in a template accept any size.
 GEOMETRY_ARRAYS = {
     "H_cam_from_proj": (np.float64, ("n", 3, 3)),
     "H_proj_from_cam": (np.float64, ("n", 3, 3)),
+    "folds_proj": (np.float64, ("f", 3)),
+    "folds_cam": (np.float64, ("f", 3)),
+    "fold_planes": (np.int32, ("f", 2)),
+    "lit_polygon_cam": (np.float64, ("m", 2)),
+}
+#: Versions 1 and 2 stored one fold line at most (zeros for one plane).
+LEGACY_FOLD_ARRAYS = {
     "fold_proj": (np.float64, (3,)),
     "fold_cam": (np.float64, (3,)),
-    "lit_polygon_cam": (np.float64, ("m", 2)),
 }
 RADIOMETRY_ARRAYS = {
     "response_lut": (np.float32, (3, 256)),
@@ -80,9 +88,13 @@ def _identity_lut() -> np.ndarray:
 class Calibration:
     """Everything learnt about one projector-camera-surface arrangement.
 
-    Geometry: ``H_cam_from_proj`` / ``H_proj_from_cam`` (n, 3, 3) float64 per plane,
-    ``fold_proj`` / ``fold_cam`` (3,) lines ``a x + b y + c = 0`` (a² + b² = 1, plane 0 where
-    negative; zeros for one plane), ``lit_polygon_cam`` (m, 2) outline lit by the projector.
+    Geometry: ``H_cam_from_proj`` / ``H_proj_from_cam`` (n, 3, 3) float64 per plane (n = 1 ..
+    :data:`~rtdefocus.calib.planar.MAX_PLANES`); the folds between them, ``folds_proj`` /
+    ``folds_cam`` (f, 3) float64 lines ``a x + b y + c = 0`` (a² + b² = 1) with
+    ``fold_planes`` (f, 2) int32 the plane on each fold's negative and positive side (f = 0 for
+    one plane; :attr:`layout` reads them as a :class:`~rtdefocus.calib.planar.PlaneLayout`);
+    ``lit_polygon_cam`` (m, 2) outline lit by the projector. Two planes: one fold, plane 0 on
+    its negative side (``fold_proj`` / ``fold_cam`` give that line).
     Radiometry (optional): ``response_lut`` (3, 256) code -> linear light, ``ambient_proj``,
     ``albedo_proj`` (Hp, Wp, 3). PSF (optional): ``psf_points_proj`` (N, 2), ``psf_plane`` (N,),
     ``psfs`` (N, k, k) unit-sum gather kernels, ``pix_idx`` / ``pix_wts`` (Hp, Wp, 4).
@@ -97,8 +109,9 @@ class Calibration:
     camera_size: tuple[int, int]
     H_cam_from_proj: np.ndarray
     H_proj_from_cam: np.ndarray
-    fold_proj: np.ndarray
-    fold_cam: np.ndarray
+    folds_proj: np.ndarray
+    folds_cam: np.ndarray
+    fold_planes: np.ndarray
     lit_polygon_cam: np.ndarray
     response_lut: np.ndarray | None = None
     ambient_proj: np.ndarray | None = None
@@ -117,10 +130,55 @@ class Calibration:
     # display_rect answers per (aspect, margin, outline); not a constructor argument.
     _rect_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
+    @classmethod
+    def with_fold(cls, *, fold_proj=None, fold_cam=None, **kwargs) -> Calibration:
+        """A calibration of one or two planes given by one fold line (``fold_proj`` /
+        ``fold_cam`` (3,), plane 0 where negative; ignored, may be None or zeros, for one
+        plane), as format 2 stored it. Other arguments as the constructor."""
+        n = int(np.asarray(kwargs["H_cam_from_proj"]).shape[0])
+        if n == 1:
+            folds_proj = folds_cam = np.zeros((0, 3))
+            planes = np.zeros((0, 2), np.int32)
+        else:
+            folds_proj = np.asarray(fold_proj, np.float64).reshape(1, 3)
+            folds_cam = np.asarray(fold_cam, np.float64).reshape(1, 3)
+            planes = np.array([[0, 1]], np.int32)
+        return cls(folds_proj=folds_proj, folds_cam=folds_cam, fold_planes=planes, **kwargs)
+
     # ------------------------------------------------------------------ queries
     @property
     def n_planes(self) -> int:
         return int(self.H_cam_from_proj.shape[0])
+
+    @property
+    def layout(self) -> PlaneLayout:
+        """The planes in projector pixels (:class:`~rtdefocus.calib.planar.PlaneLayout`)."""
+        return PlaneLayout(self.n_planes, self.folds_proj, self.fold_planes)
+
+    @property
+    def layout_cam(self) -> PlaneLayout:
+        """The planes in (undistorted) camera pixels, same plane numbers."""
+        return PlaneLayout(self.n_planes, self.folds_cam, self.fold_planes)
+
+    @property
+    def fold_proj(self) -> np.ndarray:
+        """The fold line (3,) of a two-plane calibration; zeros for one plane. Several folds:
+        InputError naming :attr:`layout` (which handles any number)."""
+        return self._single_fold(self.folds_proj, "folds_proj")
+
+    @property
+    def fold_cam(self) -> np.ndarray:
+        """:attr:`fold_proj` in camera pixels."""
+        return self._single_fold(self.folds_cam, "folds_cam")
+
+    def _single_fold(self, folds, name: str) -> np.ndarray:
+        folds = np.asarray(folds, np.float64).reshape(-1, 3)
+        if len(folds) == 0:
+            return np.zeros(3)
+        if len(folds) > 1:
+            raise InputError(f"this calibration has {self.n_planes} planes and {len(folds)} folds; "
+                             f"use calib.layout (or calib.{name}) instead of a single fold line")
+        return folds[0].copy()
 
     @property
     def has_radiometry(self) -> bool:
@@ -136,15 +194,15 @@ class Calibration:
         return self.response_lut if self.response_lut is not None else _identity_lut()
 
     def plane_of(self, x, y) -> np.ndarray:
-        """Plane index (0 or 1) of projector pixel(s) (x, y): 0 where ``fold_proj`` is negative.
+        """Plane index (int8) of projector pixel(s) (x, y) (:meth:`PlaneLayout.label`; with two
+        planes, 0 where ``fold_proj`` is negative).
 
         ``x``, ``y``: finite numbers or arrays that broadcast together (InputError otherwise).
         """
         x, y = check_coords(x, y, "plane_of position")
         if self.n_planes == 1:
             return np.zeros(np.broadcast(x, y).shape, dtype=np.int8)
-        a, b, c = self.fold_proj
-        return (a * x + b * y + c >= 0).astype(np.int8)
+        return self.layout.label(x, y)
 
     def plane_map(self) -> np.ndarray:
         """(Hp, Wp) int8 plane index of every projector pixel."""
@@ -323,9 +381,12 @@ class Calibration:
             csize = tuple(int(v) for v in meta["camera_size"])
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationFileError(f"{str(path)!r}: meta lacks projector/camera size") from exc
-        _verify(data, meta, psize, str(path), verify)
+        _verify(data, meta, psize, str(path), verify, legacy=version < 3)
+        if version < 3:
+            data = _folds_from_legacy(data)
         kwargs = {name: data.get(name) for names in SECTIONS.values() for name in names}
-        for name in GEOMETRY_ARRAYS:
+        for name in ("H_cam_from_proj", "H_proj_from_cam", "folds_proj", "folds_cam",
+                     "lit_polygon_cam"):
             kwargs[name] = kwargs[name].astype(np.float64)
         drop = {"format", "format_version", "rtdefocus_version", "created", "projector_size",
                 "camera_size", "sections", DIGEST_KEY}
@@ -356,13 +417,27 @@ def content_digest(meta: dict, arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def _verify(data: dict, meta: dict, projector_size, where: str, verify: bool) -> None:
+def _folds_from_legacy(data: dict) -> dict:
+    """Format 1-2 arrays with the one fold line (zeros for one plane) as format 3's folds."""
+    data = dict(data)
+    fold_proj, fold_cam = data.pop("fold_proj"), data.pop("fold_cam")
+    if data["H_cam_from_proj"].shape[0] == 1:
+        data["folds_proj"] = data["folds_cam"] = np.zeros((0, 3))
+        data["fold_planes"] = np.zeros((0, 2), np.int32)
+    else:
+        data["folds_proj"], data["folds_cam"] = fold_proj.reshape(1, 3), fold_cam.reshape(1, 3)
+        data["fold_planes"] = np.array([[0, 1]], np.int32)
+    return data
+
+
+def _verify(data: dict, meta: dict, projector_size, where: str, verify: bool,
+            legacy: bool = False) -> None:
     """Check the arrays, then the content digest; a digest mismatch is reported as damage or
     an edit (with the first structural defect found, if any), since it is the likelier story
     than a file written wrong by rtdefocus itself."""
     problem = None
     try:
-        _check_arrays(data, projector_size, where)
+        _check_arrays(data, projector_size, where, legacy)
     except CalibrationFileError as exc:
         problem = exc
     stored = meta.get(DIGEST_KEY)
@@ -397,15 +472,20 @@ def json_default(obj):
     raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
 
 
-def _check_arrays(arrays: dict, projector_size, where: str) -> None:
-    known = {n for names in SECTIONS.values() for n in names}
+def _check_arrays(arrays: dict, projector_size, where: str, legacy: bool = False) -> None:
+    sections = SECTIONS
+    if legacy:      # formats 1-2: one fold line instead of the fold lists
+        geometry = {k: v for k, v in GEOMETRY_ARRAYS.items()
+                    if k not in ("folds_proj", "folds_cam", "fold_planes")}
+        sections = {**SECTIONS, "geometry": {**geometry, **LEGACY_FOLD_ARRAYS}}
+    known = {n for names in sections.values() for n in names}
     unknown = sorted(set(arrays) - known)
     if unknown:
         raise CalibrationFileError(f"{where}: unknown entries {unknown}; the file is foreign or "
                                    "from another version — recalibrate")
     wp, hp = projector_size
     dims: dict[str, int] = {"Hp": hp, "Wp": wp}
-    for section, names in SECTIONS.items():
+    for section, names in sections.items():
         present = [n for n in names if n in arrays]
         if section == "geometry" and len(present) < len(names) or 0 < len(present) < len(names):
             missing = sorted(set(names) - set(present))
@@ -430,8 +510,18 @@ def _check_arrays(arrays: dict, projector_size, where: str) -> None:
             if arr.dtype.kind == "f" and not np.isfinite(arr).all():
                 raise CalibrationFileError(f"{where}: {name} contains NaN or infinite values")
     n = dims.get("n")
-    if n not in (1, 2):
-        raise CalibrationFileError(f"{where}: {n} planes; rtdefocus handles 1 or 2")
+    if n is None or not 1 <= n <= MAX_PLANES:
+        raise CalibrationFileError(f"{where}: {n} planes; rtdefocus handles 1 to {MAX_PLANES}")
+    if legacy and n > 2:
+        raise CalibrationFileError(f"{where}: {n} planes in a format-1/2 file, which holds one "
+                                   "fold at most; recalibrate")
+    if not legacy:
+        try:
+            PlaneLayout(n, arrays["folds_proj"], arrays["fold_planes"])
+            PlaneLayout(n, arrays["folds_cam"], arrays["fold_planes"])
+        except InputError as exc:
+            raise CalibrationFileError(f"{where}: the folds do not describe {n} planes ({exc}); "
+                                       "recalibrate") from None
     if "k" in dims and dims["k"] % 2 == 0:
         raise CalibrationFileError(f"{where}: PSF size {dims['k']} must be odd")
     if "pix_idx" in arrays:

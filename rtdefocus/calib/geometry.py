@@ -235,7 +235,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     Hinv = np.stack([np.linalg.inv(H) for H in Hs])
     Hinv = np.stack([H / H[2, 2] for H in Hinv])
     poly = lit_polygon(pats.projector_size, Hs, fold_proj)
-    calib = Calibration(projector_size=pats.projector_size, camera_size=camera_size,
+    calib = Calibration.with_fold(projector_size=pats.projector_size, camera_size=camera_size,
                         H_cam_from_proj=Hs, H_proj_from_cam=Hinv, fold_proj=fold_proj,
                         fold_cam=fold_cam, lit_polygon_cam=poly)
     stats["seconds"] = round(time.perf_counter() - t_start, 2)

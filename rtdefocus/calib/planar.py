@@ -20,7 +20,8 @@ from ..errors import InputError
 __all__ = [
     "apply_h", "apply_h_per_plane", "normalise_line", "line_eval", "tls_line", "canonical_line",
     "segment_in_mask", "clip_polygon", "projector_frame", "inset_frame", "fold_sign",
-    "plane_polygons_proj", "plane_polygon", "lit_polygon", "points_in_polygon",
+    "MAX_PLANES", "MAX_FOLDS", "PlaneLayout", "plane_polygons_proj", "plane_polygon", "lit_polygon",
+    "points_in_polygon",
     "largest_inscribed_rect",
 ]
 
@@ -140,53 +141,230 @@ def inset_frame(size: tuple[int, int], inset: float) -> np.ndarray:
 
 
 def fold_sign(plane: int) -> float:
-    """s such that s · fold(x) > 0 inside ``plane`` (plane 0 is where the fold line is negative)."""
+    """s such that s · fold(x) > 0 inside ``plane`` of a two-plane set-up (plane 0 is where the
+    fold line is negative)."""
     return -1.0 if plane == 0 else 1.0
 
 
-def plane_polygons_proj(projector_size, fold_proj: np.ndarray, n_planes: int) -> list[np.ndarray]:
-    """The projector frame split at the fold: one convex polygon (k, 2) per plane."""
+# --------------------------------------------------------------------------- plane layouts
+#: Most planes one calibration handles, and most folds between them (the GL warp's uniform
+#: arrays are this long; planes meeting along lines make at most 3 n - 6 folds for n >= 3).
+MAX_PLANES = 8
+MAX_FOLDS = 2 * MAX_PLANES
+
+
+class PlaneLayout:
+    """How an image (the projector frame, or the camera's view of it) splits into planes.
+
+    Parameters
+    ----------
+    n_planes : int, 1 .. :data:`MAX_PLANES`.
+    folds : (m, 3) float lines ``a x + b y + c = 0`` (normalised here: a² + b² = 1), one per
+        pair of planes that meet inside the frame.
+    fold_planes : (m, 2) int, for each fold the plane on its negative side and the plane on
+        its positive side.
+
+    A point belongs to plane p when it is on p's side of every fold that bounds p. Fitted folds
+    that should meet at one vertex pass a little apart; there a point goes to the plane it is
+    least outside of (:meth:`label`), so the labels always tile the frame, with no gap or
+    overlap. Two planes: one fold, plane 0 on its negative side, exactly as before (ties, on
+    the line itself, go to the higher plane).
+    """
+
+    def __init__(self, n_planes: int, folds=None, fold_planes=None):
+        n = int(n_planes)
+        f = np.zeros((0, 3)) if folds is None else np.asarray(folds, np.float64).reshape(-1, 3)
+        fp = (np.zeros((0, 2), np.int64) if fold_planes is None
+              else np.asarray(fold_planes).reshape(-1, 2).astype(np.int64))
+        if not 1 <= n <= MAX_PLANES:
+            raise InputError(f"a plane layout has 1 to {MAX_PLANES} planes; got {n}")
+        if len(f) > MAX_FOLDS:
+            raise InputError(f"a plane layout has at most {MAX_FOLDS} folds; got {len(f)}")
+        if len(f) != len(fp):
+            raise InputError(f"{len(f)} fold lines but {len(fp)} fold plane pairs; give one pair "
+                             "(negative side, positive side) per fold")
+        if not np.isfinite(f).all() or (len(f) and not (np.hypot(f[:, 0], f[:, 1]) > 0).all()):
+            raise InputError(f"fold lines must be finite with (a, b) != 0; got {f.tolist()}")
+        if len(fp) and (fp.min() < 0 or fp.max() >= n or (fp[:, 0] == fp[:, 1]).any()):
+            raise InputError(f"fold plane pairs must name two different planes among 0..{n - 1}; "
+                             f"got {fp.tolist()}")
+        if n > 1:
+            touched = set(fp.ravel().tolist())
+            if len(touched) < n:
+                raise InputError(f"planes {sorted(set(range(n)) - touched)} of {n} have no fold; "
+                                 "every plane of a layout must meet another one")
+        self.n_planes = n
+        self.folds = f / np.hypot(f[:, 0], f[:, 1])[:, None] if len(f) else f
+        self.fold_planes = fp
+        # signs[p, j]: +1 where plane p lies on fold j's positive side, -1 negative, 0 unbounded.
+        s = np.zeros((n, len(f)))
+        for j, (neg, pos) in enumerate(fp):
+            s[neg, j], s[pos, j] = -1.0, 1.0
+        self.signs = s
+
+    @classmethod
+    def from_fold(cls, fold, n_planes: int) -> PlaneLayout:
+        """One plane (``fold`` ignored), or two planes split by one line (plane 0 negative)."""
+        if int(n_planes) == 1:
+            return cls(1)
+        if int(n_planes) != 2:
+            raise InputError(f"one fold line splits the frame into 2 planes, not {n_planes}; "
+                             "give a PlaneLayout for more")
+        if fold is None:
+            raise InputError("two planes need a fold line (a, b, c); got None")
+        return cls(2, np.asarray(fold, np.float64).reshape(1, 3), [[0, 1]])
+
+    @classmethod
+    def coerce(cls, planes, n_planes: int) -> PlaneLayout:
+        """A layout from what callers pass as "the planes": a PlaneLayout, a (3,) fold line
+        (two planes) or None / zeros (one plane)."""
+        if isinstance(planes, PlaneLayout):
+            if planes.n_planes != int(n_planes):
+                raise InputError(f"the plane layout has {planes.n_planes} planes but "
+                                 f"{n_planes} homographies were given; they must agree")
+            return planes
+        if int(n_planes) == 1:
+            return cls(1)
+        if planes is None:
+            raise InputError(f"{n_planes} planes need their fold (a line (a, b, c) or a "
+                             "PlaneLayout); got None")
+        line = np.asarray(planes, np.float64).reshape(-1)
+        if line.shape != (3,) or not np.isfinite(line).all() or not np.hypot(line[0], line[1]) > 0:
+            raise InputError(f"the fold must be a finite line (a, b, c) with (a, b) != 0 (or a "
+                             f"PlaneLayout); got {np.asarray(planes).tolist()}")
+        return cls.from_fold(line, n_planes)
+
+    @property
+    def n_folds(self) -> int:
+        return len(self.folds)
+
+    def bounding(self, plane: int) -> list[tuple[np.ndarray, float]]:
+        """The folds that bound ``plane``: (line, s) with s · line(x) >= 0 inside the plane."""
+        return [(self.folds[j], float(self.signs[plane, j]))
+                for j in range(self.n_folds) if self.signs[plane, j] != 0]
+
+    def outside(self, x, y) -> np.ndarray:
+        """(n_planes, *shape) float64: how far (px) each point is outside each plane; <= 0 inside
+        (the largest distance to the wrong side of a bounding fold; -inf for a lone plane)."""
+        x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        out = np.full((self.n_planes,) + x.shape, -np.inf)
+        for j, (a, b, c) in enumerate(self.folds):
+            v = a * x + b * y + c
+            for p in np.flatnonzero(self.signs[:, j]):
+                np.maximum(out[p], -self.signs[p, j] * v, out=out[p])
+        return out
+
+    def label(self, x, y) -> np.ndarray:
+        """int8 plane of each point (arrays broadcast): the plane it is least outside of, ties
+        to the higher index (the GL warp makes the same choice)."""
+        v = self.outside(x, y)
+        best = np.zeros(v.shape[1:], np.int8)
+        best_v = v[0].copy()
+        for p in range(1, self.n_planes):
+            take = v[p] <= best_v
+            best[take] = p
+            best_v[take] = v[p][take]
+        return best
+
+    def polygon(self, frame: np.ndarray, plane: int, fold_inset: float = 0.0) -> np.ndarray:
+        """Convex outline (k, 2) of ``plane`` inside the convex polygon ``frame``, kept
+        ``fold_inset`` px away from each of its folds; (0, 2) when nothing is left."""
+        poly = np.asarray(frame, np.float64)
+        for (a, b, c), s in self.bounding(plane):
+            poly = clip_polygon(poly, (-s * a, -s * b, -s * c + fold_inset))
+            if len(poly) == 0:
+                break
+        return poly
+
+    def fold_segments(self, frame: np.ndarray) -> list[np.ndarray | None]:
+        """Per fold, the end points (2, 2) of the part of its line that really separates its
+        two planes inside the convex ``frame`` (shared edge of their outlines), or None."""
+        out = []
+        for j, (neg, pos) in enumerate(self.fold_planes):
+            ends = []
+            for p in (neg, pos):
+                poly = self.polygon(frame, p)
+                on = np.abs(line_eval(self.folds[j], poly)) < 1e-6 if len(poly) else []
+                if np.count_nonzero(on) < 2:
+                    ends = None
+                    break
+                ends.append(poly[on])
+            if ends is None:
+                out.append(None)
+                continue
+            d = np.array([-self.folds[j][1], self.folds[j][0]])
+            t0, t1 = (e @ d for e in ends)
+            lo, hi = max(t0.min(), t1.min()), min(t0.max(), t1.max())
+            if not hi > lo:
+                out.append(None)
+                continue
+            both = np.concatenate(ends)
+            tt = both @ d
+            out.append(np.stack([both[np.argmin(np.abs(tt - lo))], both[np.argmin(np.abs(tt - hi))]]))
+        return out
+
+    def __eq__(self, other) -> bool:
+        return (isinstance(other, PlaneLayout) and self.n_planes == other.n_planes
+                and np.array_equal(self.folds, other.folds)
+                and np.array_equal(self.fold_planes, other.fold_planes))
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return (f"PlaneLayout({self.n_planes} planes, folds {np.round(self.folds, 4).tolist()}, "
+                f"fold_planes {self.fold_planes.tolist()})")
+
+
+def plane_polygons_proj(projector_size, planes, n_planes: int) -> list[np.ndarray]:
+    """The projector frame split into planes: one convex polygon (k, 2) per plane.
+    ``planes``: a :class:`PlaneLayout`, or a fold line / None (see :meth:`PlaneLayout.coerce`)."""
+    layout = PlaneLayout.coerce(planes, n_planes)
     frame = projector_frame(projector_size)
-    if n_planes == 1:
-        return [frame]
-    fold = np.asarray(fold_proj, np.float64)
-    return [clip_polygon(frame, fold), clip_polygon(frame, -fold)]
+    return [layout.polygon(frame, p) for p in range(layout.n_planes)]
 
 
-def plane_polygon(projector_size: tuple[int, int], fold_proj: np.ndarray, n_planes: int,
+def plane_polygon(projector_size: tuple[int, int], planes, n_planes: int,
                   plane: int, edge_inset: float = 0.0, fold_inset: float = 0.0) -> np.ndarray:
     """Convex outline (m, 2) of ``plane`` in projector pixels (pixel centres), shrunk by
-    ``edge_inset`` from the frame edges and by ``fold_inset`` from the fold. Empty (0, 2) when
-    nothing is left."""
-    poly = inset_frame(projector_size, edge_inset)
-    if n_planes == 2:
-        a, b, c = fold_proj
-        s = fold_sign(plane)
-        poly = clip_polygon(poly, (-s * a, -s * b, -s * c + fold_inset))
-    return poly
+    ``edge_inset`` from the frame edges and by ``fold_inset`` from each of its folds. Empty
+    (0, 2) when nothing is left. ``planes`` as in :func:`plane_polygons_proj`."""
+    layout = PlaneLayout.coerce(planes, n_planes)
+    return layout.polygon(inset_frame(projector_size, edge_inset), plane, fold_inset)
 
 
 def lit_polygon(projector_size: tuple[int, int], H_cam_from_proj: np.ndarray,
-                fold_proj: np.ndarray) -> np.ndarray:
+                planes) -> np.ndarray:
     """Outline (m, 2) float64 in camera px of what the projector lights, in boundary order.
 
-    The projector frame's border, walked in order, is cut where the fold crosses it; each
-    piece is mapped through its own plane's homography (both planes map the fold to the same
-    camera line, so the pieces join there).
+    The projector frame's border, walked in order, is cut where it passes from one plane to
+    another; each piece is mapped through its own plane's homography (neighbouring planes map
+    their fold to the same camera line, so the pieces join there). ``planes``: a
+    :class:`PlaneLayout`, or a fold line / None for one or two planes.
     """
     frame = projector_frame(projector_size)
     n = H_cam_from_proj.shape[0]
     if n == 1:
         return apply_h(H_cam_from_proj[0], frame)
+    layout = PlaneLayout.coerce(planes, n)
     out = []
     for k in range(4):
         p, q = frame[k], frame[(k + 1) % 4]
-        fp, fq = line_eval(fold_proj, p[None])[0], line_eval(fold_proj, q[None])[0]
-        out.append(apply_h(H_cam_from_proj[int(fp >= 0)], p[None])[0])
-        if (fp < 0) != (fq < 0):
-            x = p + fp / (fp - fq) * (q - p)
-            a, b = apply_h(H_cam_from_proj[0], x[None])[0], apply_h(H_cam_from_proj[1], x[None])[0]
-            out.append(0.5 * (a + b))
+        # Where each fold crosses this edge, then the plane of every piece between crossings.
+        ts = [0.0, 1.0]
+        for line in layout.folds:
+            fp, fq = line_eval(line, p[None])[0], line_eval(line, q[None])[0]
+            if (fp < 0) != (fq < 0) and fp != fq:
+                ts.append(fp / (fp - fq))
+        ts = np.unique(np.clip(ts, 0.0, 1.0))
+        mids = p + 0.5 * (ts[:-1] + ts[1:])[:, None] * (q - p)
+        labels = layout.label(mids[:, 0], mids[:, 1])
+        out.append(apply_h(H_cam_from_proj[labels[0]], p[None])[0])
+        for i in range(1, len(labels)):
+            if labels[i] != labels[i - 1]:
+                x = p + ts[i] * (q - p)
+                a = apply_h(H_cam_from_proj[labels[i - 1]], x[None])[0]
+                b = apply_h(H_cam_from_proj[labels[i]], x[None])[0]
+                out.append(0.5 * (a + b))
     return np.array(out)
 
 

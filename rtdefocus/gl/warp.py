@@ -13,6 +13,7 @@ import logging
 
 import numpy as np
 
+from ..calib.planar import MAX_FOLDS, MAX_PLANES
 from ..errors import DeviceError, InputError, InputTypeError
 from ..reference.warp import (
     check_image,
@@ -79,7 +80,8 @@ class GLWarp:
             raise InputError(f"projector_size must be positive (width, height); got {projector_size}")
         self.projector_size = (wp, hp)
         self.ctx = ctx
-        self.program = load_program(ctx, "warp.glsl")
+        self.program = load_program(ctx, "warp.glsl", {"MAX_PLANES": MAX_PLANES,
+                                                        "MAX_FOLDS": MAX_FOLDS})
         self.vao = ctx.vertex_array(self.program, [])
         # CLAMP_TO_BORDER with a black border = cv2's BORDER_CONSTANT 0, on every mip level.
         self.sampler = ctx.sampler(repeat_x=False, repeat_y=False, border_color=(0.0, 0.0, 0.0, 0.0),
@@ -93,18 +95,27 @@ class GLWarp:
 
     # ------------------------------------------------------------------ state
     def _configure(self, H_cam_from_proj, fold_proj, rect, input_size) -> None:
-        H, fold, r, psize = check_warp_inputs(H_cam_from_proj, fold_proj, rect, self.projector_size)
-        M = st_from_frag_matrices(H, r, psize)
-        if M.shape[0] == 1:
-            M = np.concatenate([M, M])
+        H, layout, r, psize = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
+                                                self.projector_size)
+        n, m = layout.n_planes, layout.n_folds
+        M = np.zeros((MAX_PLANES, 3, 3))
+        M[:n] = st_from_frag_matrices(H, r, psize)
         hp = psize[1]
-        # fold · (x, y, 1) with (x, y) = (fx − 0.5, Hp − 0.5 − fy): the same line in fragment coords.
-        fold_frag = fold @ np.array([[1.0, 0.0, -0.5], [0.0, -1.0, hp - 0.5], [0.0, 0.0, 1.0]])
+        # fold · (x, y, 1) with (x, y) = (fx − 0.5, Hp − 0.5 − fy): the same lines in fragment
+        # coordinates.
+        folds = np.zeros((MAX_FOLDS, 3))
+        folds[:m] = layout.folds @ np.array([[1.0, 0.0, -0.5], [0.0, -1.0, hp - 0.5],
+                                             [0.0, 0.0, 1.0]])
+        signs = np.zeros((MAX_PLANES, MAX_FOLDS))
+        signs[:n, :m] = layout.signs
         # GLSL mat3 is column-major: upload each matrix transposed.
         self.program["u_st_from_frag"].write(np.ascontiguousarray(M.transpose(0, 2, 1), dtype="f4"))
-        self.program["u_fold_frag"].value = tuple(float(v) for v in fold_frag)
+        self.program["u_folds_frag"].write(np.ascontiguousarray(folds, dtype="f4"))
+        self.program["u_sign"].write(np.ascontiguousarray(signs, dtype="f4"))
+        self.program["u_n_planes"].value = n
+        self.program["u_n_folds"].value = m
         self.program["u_image_size"].value = tuple(float(v) for v in input_size)
-        lod = warp_lod(H, fold, r, input_size, psize, step=LOD_STEP)
+        lod = warp_lod(H, layout, r, input_size, psize, step=LOD_STEP)
         max_lod = float(np.nanmax(lod)) if np.isfinite(lod).any() else 0.0
         self._levels_wanted = mip_levels_needed(max_lod, input_size)
         log.debug("warp configured: input %s, rect %s, max lod %.3f, %d mip level(s)",
@@ -138,8 +149,7 @@ class GLWarp:
                              f"{self.projector_size[0]}x{self.projector_size[1]} projector frames; "
                              "make the window/framebuffer the projector's size")
         input_size = (img.shape[1], img.shape[0])
-        key = (np.asarray(H_cam_from_proj, dtype=np.float64).tobytes(),
-               None if fold_proj is None else np.asarray(fold_proj, dtype=np.float64).tobytes(),
+        key = (np.asarray(H_cam_from_proj, dtype=np.float64).tobytes(), _planes_key(fold_proj),
                tuple(float(v) for v in np.asarray(rect, dtype=np.float64).reshape(-1)), input_size)
         if key != self._key:
             self._key = None          # stays unset if the new geometry is rejected
@@ -161,10 +171,11 @@ class GLWarp:
         image : (H, W, 3) uint8
             RGB input, any size.
         H_cam_from_proj : (n, 3, 3) float64
-            Per-plane homographies, projector pixel -> camera pixel (n = 1 or 2).
-        fold_proj : (3,) float64 or None
-            Fold line ``a x + b y + c = 0`` in projector pixels, plane 0 where negative
-            (ignored when n = 1).
+            Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
+        fold_proj : PlaneLayout, (3,) float64 or None
+            The planes (``calib.layout``); for two planes also their fold line
+            ``a x + b y + c = 0`` in projector pixels, plane 0 where negative (ignored when
+            n = 1).
         rect : (x0, y0, w, h)
             Display rectangle in camera pixels where the input must appear.
 
@@ -187,6 +198,15 @@ class GLWarp:
         self.fbo = self.texture = None
 
 
+def _planes_key(planes):
+    """Hashable identity of a plane layout / fold line / None (the geometry cache key)."""
+    if planes is None:
+        return None
+    if hasattr(planes, "fold_planes"):
+        return (planes.n_planes, planes.folds.tobytes(), planes.fold_planes.tobytes())
+    return np.asarray(planes, dtype=np.float64).tobytes()
+
+
 # ---------------------------------------------------------------------- convenience
 _shared: dict[tuple[int, tuple[int, int]], tuple[object, GLWarp]] = {}
 _warned_no_gl = False
@@ -205,7 +225,7 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
     Parameters
     ----------
     calib : rtdefocus.Calibration
-        Supplies the projector size, ``H_cam_from_proj``, ``fold_proj`` and the display rect.
+        Supplies the projector size, ``H_cam_from_proj``, ``layout`` and the display rect.
     image : (H, W, 3) uint8
         RGB input, any size.
     rect : (x0, y0, w, h), optional
@@ -220,7 +240,7 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
         The projector frame.
     """
     global _warned_no_gl
-    missing = [a for a in ("projector_size", "H_cam_from_proj", "fold_proj", "display_rect")
+    missing = [a for a in ("projector_size", "H_cam_from_proj", "layout", "display_rect")
                if not hasattr(calib, a)]
     if missing:
         raise InputTypeError(f"warp_image needs an rtdefocus Calibration first; got "
@@ -245,5 +265,5 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
             backend = "gl"
     if backend == "gl":
         return _shared_warp(ctx, calib.projector_size).render(
-            img, calib.H_cam_from_proj, calib.fold_proj, rect)
-    return warp_cv2(img, calib.H_cam_from_proj, calib.fold_proj, rect, calib.projector_size)
+            img, calib.H_cam_from_proj, calib.layout, rect)
+    return warp_cv2(img, calib.H_cam_from_proj, calib.layout, rect, calib.projector_size)

@@ -428,7 +428,7 @@ class ProjectorWindow:
         with self._current():
             if self._warp is None:
                 self._warp = GLWarp(self.ctx, self.size)
-            self._warped = (image, calib.H_cam_from_proj, calib.fold_proj, rect)
+            self._warped = (image, calib.H_cam_from_proj, calib.layout, rect)
             self._frame = None
             self._warp.render_to(self.ctx.screen, *self._warped)
             glfw.swap_buffers(self._win)

@@ -1,7 +1,9 @@
 """The warp + stitch, plainly (docs/internals.md, "The warp"): the reference for ``gl/warp.py``.
 
-Per projector pixel (x, y) (centres at integers): plane p = 0 where ``fold_proj · (x, y, 1) < 0``,
-else 1 (always 0 with one plane); camera point ``H_cam_from_proj[p] @ (x, y, 1)``
+Per projector pixel (x, y) (centres at integers): plane p from the plane layout
+(:meth:`rtdefocus.calib.planar.PlaneLayout.label`: with two planes, 0 where
+``fold_proj · (x, y, 1) < 0``, else 1; always 0 with one plane); camera point
+``H_cam_from_proj[p] @ (x, y, 1)``
 (dehomogenised); input pixel through the display rect (x0, y0, w, h) for an input of W×H::
 
     u = (xc - x0 + 0.5) * W / w - 0.5          v = (yc - y0 + 0.5) * H / h - 0.5
@@ -31,6 +33,7 @@ import math
 import cv2
 import numpy as np
 
+from ..calib.planar import MAX_PLANES, PlaneLayout
 from ..errors import InputError, InputTypeError
 
 __all__ = ["check_image", "check_warp_inputs", "mip_levels_needed", "mip_pyramid", "warp_cv2",
@@ -43,10 +46,11 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
     Parameters
     ----------
     H_cam_from_proj : array_like, (n, 3, 3) or (3, 3)
-        Per-plane homographies, projector pixel -> camera pixel; n is 1 or 2.
-    fold_proj : array_like, (3,) or None
-        Fold line ``a x + b y + c = 0`` in projector pixels, plane 0 where negative. Ignored
-        (may be None or zeros) when n = 1.
+        Per-plane homographies, projector pixel -> camera pixel; n is 1 .. MAX_PLANES.
+    fold_proj : PlaneLayout, array_like (3,) or None
+        The planes in projector pixels: a :class:`~rtdefocus.calib.planar.PlaneLayout`
+        (``calib.layout``), or for two planes their fold line ``a x + b y + c = 0``, plane 0
+        where negative. Ignored (may be None or zeros) when n = 1.
     rect : sequence of 4 numbers
         Display rectangle ``(x0, y0, w, h)`` in camera pixels (an OpenCV Rect).
     projector_size : (int, int)
@@ -58,17 +62,16 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
         Homographies scaled to unit norm with the sign that makes the homogeneous coordinate
         positive at the projector's centre (a homography is defined up to any non-zero factor,
         and "behind the camera" must mean the same thing in every implementation).
-    fold : (3,) float64
-        The fold line; ``(0, 0, -1)`` (everything on plane 0) when n = 1.
+    layout : PlaneLayout
     rect : (4,) float64
     projector_size : (int, int)
     """
     H = np.asarray(H_cam_from_proj, dtype=np.float64)
     if H.shape == (3, 3):
         H = H[None]
-    if H.ndim != 3 or H.shape[1:] != (3, 3) or H.shape[0] not in (1, 2):
-        raise InputError(f"H_cam_from_proj must have shape (n, 3, 3) with n = 1 or 2 planes; got "
-                         f"{H.shape}")
+    if H.ndim != 3 or H.shape[1:] != (3, 3) or not 1 <= H.shape[0] <= MAX_PLANES:
+        raise InputError(f"H_cam_from_proj must have shape (n, 3, 3) with n = 1 .. {MAX_PLANES} "
+                         f"planes; got {H.shape}")
     if not np.isfinite(H).all():
         raise InputError("H_cam_from_proj contains NaN or infinite values; the geometric "
                          "calibration failed — recalibrate (`rtdefocus calibrate`)")
@@ -96,19 +99,14 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
             raise InputError(f"H_cam_from_proj[{p}] sends the projector's centre to infinity "
                              f"({Hp_.tolist()}); recalibrate the geometry")
         out[p] = Hn if z > 0 else -Hn
-    if out.shape[0] == 1:
-        fold = np.array([0.0, 0.0, -1.0])
-    else:
-        if fold_proj is None:
-            raise InputError("two planes need fold_proj (a, b, c); got None")
-        fold = np.asarray(fold_proj, dtype=np.float64).reshape(-1)
-        if fold.shape != (3,) or not np.isfinite(fold).all() or not np.hypot(fold[0], fold[1]) > 0:
-            raise InputError(f"fold_proj must be a finite line (a, b, c) with (a, b) != 0 when there "
-                             f"are two planes; got {np.asarray(fold_proj).tolist()}")
+    try:
+        layout = PlaneLayout.coerce(fold_proj, out.shape[0])
+    except InputError as exc:
+        raise InputError(f"fold_proj: {exc}") from None
     r = np.asarray(rect, dtype=np.float64).reshape(-1)
     if r.shape != (4,) or not np.isfinite(r).all() or r[2] <= 0 or r[3] <= 0:
         raise InputError(f"rect must be (x, y, w, h) in camera pixels with w, h > 0; got {rect!r}")
-    return out, fold, r, (wp, hp)
+    return out, layout, r, (wp, hp)
 
 
 def check_image(image) -> np.ndarray:
@@ -141,18 +139,14 @@ def check_image(image) -> np.ndarray:
 def _geometry(H_cam_from_proj, fold_proj, rect, input_size, projector_size, step=1):
     """Per projector pixel: u, v (input px), z (homogeneous coordinate) and lod, all float64.
     With ``step`` > 1 only every step-th row and column (and the last ones) are evaluated."""
-    H, fold, (x0, y0, w, h), (wp, hp) = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
-                                                          projector_size)
+    H, layout, (x0, y0, w, h), (wp, hp) = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
+                                                            projector_size)
     W, Hh = (int(v) for v in input_size)
     cols = np.unique(np.r_[np.arange(0, wp, step), wp - 1]).astype(np.float64)
     rows = np.unique(np.r_[np.arange(0, hp, step), hp - 1]).astype(np.float64)
     xs, ys = np.meshgrid(cols, rows)
-    on1 = fold[0] * xs + fold[1] * ys + fold[2] >= 0             # plane 1 where not negative
-
-    def per_plane(i, j):                                           # H[plane][i, j] per pixel
-        return np.where(on1, H[-1][i, j], H[0][i, j])
-
-    m = [[per_plane(i, j) for j in range(3)] for i in range(3)]
+    Hpix = H[layout.label(xs, ys)]                                 # (rows, cols, 3, 3)
+    m = [[Hpix[..., i, j] for j in range(3)] for i in range(3)]
     X = m[0][0] * xs + m[0][1] * ys + m[0][2]
     Y = m[1][0] * xs + m[1][1] * ys + m[1][2]
     Z = m[2][0] * xs + m[2][1] * ys + m[2][2]
@@ -177,9 +171,10 @@ def warp_maps(H_cam_from_proj, fold_proj, rect, input_size, projector_size):
     Parameters
     ----------
     H_cam_from_proj : (n, 3, 3) float64
-        Per-plane homographies, projector pixel -> camera pixel (n = 1 or 2).
-    fold_proj : (3,) float64 or None
-        Fold line in projector pixels, plane 0 where negative (ignored for n = 1).
+        Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
+    fold_proj : PlaneLayout, (3,) float64 or None
+        The planes (``calib.layout``; for two planes also their fold line, plane 0 where
+        negative; ignored for n = 1).
     rect : (x0, y0, w, h)
         Display rectangle in camera pixels.
     input_size : (int, int)
@@ -264,9 +259,10 @@ def warp_cv2(image: np.ndarray, H_cam_from_proj, fold_proj, rect, projector_size
     image : (H, W, 3) uint8
         RGB input, any size.
     H_cam_from_proj : (n, 3, 3) float64
-        Per-plane homographies, projector pixel -> camera pixel (n = 1 or 2).
-    fold_proj : (3,) float64 or None
-        Fold line in projector pixels, plane 0 where negative (ignored for n = 1).
+        Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
+    fold_proj : PlaneLayout, (3,) float64 or None
+        The planes (``calib.layout``; for two planes also their fold line, plane 0 where
+        negative; ignored for n = 1).
     rect : (x0, y0, w, h)
         Display rectangle in camera pixels where the input must appear.
     projector_size : (int, int)

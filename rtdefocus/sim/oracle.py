@@ -76,7 +76,7 @@ def oracle_calibration(procam):
         yy, xx = np.unravel_index(int(np.argmin(dist)), dist.shape)
         points[i] = (xx, yy)
 
-    calib = Calibration(
+    calib = Calibration.with_fold(
         projector_size=(wp, hp), camera_size=tuple(procam.camera_size),
         H_cam_from_proj=H, H_proj_from_cam=H_inv, fold_proj=fold_proj, fold_cam=fold_cam,
         lit_polygon_cam=np.asarray(polygon, dtype=np.float64),
