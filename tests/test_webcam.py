@@ -251,10 +251,14 @@ def test_calibration_file_keeps_the_camera_and_reads_version_1(tmp_path):
     meta.pop("sha256", None)            # a version-1 file had no content digest
     data["meta"] = np.array(json.dumps(meta))
     data.pop("camera_lut")
+    for name in ("folds_proj", "folds_cam"):        # version 1 stored the one fold line
+        folds = data.pop(name)
+        data[name.replace("folds", "fold")] = folds[0] if len(folds) else np.zeros(3)
+    data.pop("fold_planes")
     np.savez(tmp_path / "v1.npz", **data)
     old = Calibration.load(tmp_path / "v1.npz")
     assert old.camera_lut is None and old.camera_distortion is None
-    assert np.array_equal(old.psfs, calib.psfs)
+    assert np.array_equal(old.psfs, calib.psfs) and old.layout == calib.layout
 
 
 # --------------------------------------------------------------------------- lens distortion
