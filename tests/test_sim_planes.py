@@ -191,3 +191,19 @@ def test_room_scene_checks():
                           **SMALL)
     with pytest.raises(InputError, match="outside the projector frame"):
         sim.VirtualProCam(dataclasses.replace(sim.PRESETS["u_cubicle"], fold2_x_frac=1.3), **SMALL)
+
+
+@pytest.mark.parametrize("preset", ["cubicle", "pillar", "tilted", "flat"])
+def test_two_and_one_plane_presets_list_their_fold(preset):
+    t = procam(preset).truth
+    if t.n_planes == 1:
+        assert t.folds_proj.shape == (0, 3) and t.fold_planes.shape == (0, 2)
+        return
+    # The one fold, canonically oriented: the same line as fold_proj with its planes' sides.
+    assert t.folds_proj.shape == (1, 3)
+    s = 1.0 if t.fold_planes[0].tolist() == [0, 1] else -1.0
+    assert sorted(t.fold_planes[0].tolist()) == [0, 1]
+    assert np.array_equal(t.folds_proj[0], s * t.fold_proj) and np.array_equal(t.folds_cam[0], s * t.fold_cam)
+    assert np.array_equal(canonical_line(t.folds_proj[0]), t.folds_proj[0])
+    xx, yy = grid(t)
+    assert wrong_side(t.plane_map, t.folds_proj, t.fold_planes, xx, yy).max() < 1.0
