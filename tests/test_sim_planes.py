@@ -207,3 +207,26 @@ def test_two_and_one_plane_presets_list_their_fold(preset):
     assert np.array_equal(canonical_line(t.folds_proj[0]), t.folds_proj[0])
     xx, yy = grid(t)
     assert wrong_side(t.plane_map, t.folds_proj, t.fold_planes, xx, yy).max() < 1.0
+
+
+@pytest.mark.parametrize("preset", ROOMS)
+def test_oracle_calibration_of_a_room(preset, tmp_path):
+    from rtdefocus.calib.file import Calibration
+    from rtdefocus.calib.planar import points_in_polygon
+
+    pc = procam(preset)
+    t = pc.truth
+    calib = sim.oracle_calibration(pc)
+    assert calib.n_planes == 3 and calib.layout.n_folds == len(t.folds_proj)
+    assert np.array_equal(calib.fold_planes, t.fold_planes) and np.array_equal(calib.folds_cam, t.folds_cam)
+    # The calibration's plane of every projector pixel is the ray caster's, but at the folds.
+    xx, yy = grid(t)
+    near = np.min([np.abs(line_eval(f, xx, yy)) for f in t.folds_proj], axis=0) < 1.0
+    same = calib.plane_map() == t.plane_map
+    assert same[~near].all() and same.mean() > 0.99
+    # The lit outline holds the camera pixels that see the frame (the three planes' pieces join).
+    cam_y, cam_x = np.nonzero(t.extra["camera_in_frame"])
+    inside = points_in_polygon(cam_x.astype(np.float64), cam_y.astype(np.float64), calib.lit_polygon_cam)
+    assert inside.mean() > 0.995
+    loaded = Calibration.load(calib.save(tmp_path / "room"))
+    assert loaded.layout == calib.layout and loaded.layout_cam == calib.layout_cam
