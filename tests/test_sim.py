@@ -76,7 +76,7 @@ def test_frame_fully_on_walls_and_in_view(preset):
     # Every projector frame corner lands inside the camera frame, with a margin of >= 40 px.
     corners = np.array([[-0.5, -0.5], [wp - 0.5, -0.5], [-0.5, hp - 0.5], [wp - 0.5, hp - 0.5]])
     for x, y in corners:
-        p = min(1, t.n_planes - 1) if t.fold_proj is not None and fold_dist(t.fold_proj, x, y) > 0 else 0
+        p = t.plane_map[min(int(y + 0.5), hp - 1), min(int(x + 0.5), wp - 1)]   # corner pixel's plane
         c = t.H_cam_from_proj[p] @ [x, y, 1.0]
         cx, cy = c[:2] / c[2]
         assert 40 < cx < pc.camera_size[0] - 40 and 40 < cy < pc.camera_size[1] - 40, (preset, cx, cy)
@@ -113,17 +113,19 @@ def test_radius_affine_per_wall_and_thin_lens(preset):
         cinv, *_ = np.linalg.lstsq(A, 1.0 / t.depth_map[sel].astype(np.float64), rcond=None)
         assert np.abs(A @ cinv - 1.0 / t.depth_map[sel]).max() < 1e-5
         fits.append(coef)
-    if t.fold_proj is None:
-        assert np.all(t.plane_map == 0)
+    if t.n_planes == 1:
+        assert np.all(t.plane_map == 0) and t.fold_proj is None and len(t.folds_proj) == 0
         return
-    # Continuous at the fold, with a slope change.
-    a, b, c = t.fold_proj
-    ys = np.linspace(0, hp - 1, 7)
-    xs = -(b * ys + c) / a
-    r0 = fits[0][0] * xs + fits[0][1] * ys + fits[0][2]
-    r1 = fits[1][0] * xs + fits[1][1] * ys + fits[1][2]
-    assert np.abs(r0 - r1).max() < 1e-3
-    assert np.hypot(*(fits[0][:2] - fits[1][:2])) > 1e-3
+    # Continuous at every fold, with a slope change.
+    for (a, b, c), (p0, p1) in zip(t.folds_proj, t.fold_planes, strict=True):
+        s = np.linspace(-300, 300, 7)                  # along the fold from its foot
+        xs, ys = -c * a - s * b, -c * b + s * a
+        r0 = fits[p0][0] * xs + fits[p0][1] * ys + fits[p0][2]
+        r1 = fits[p1][0] * xs + fits[p1][1] * ys + fits[p1][2]
+        assert np.abs(r0 - r1).max() < 1e-3
+        assert np.hypot(*(fits[p0][:2] - fits[p1][:2])) > 1e-3
+    if t.fold_proj is None:
+        return
     # Where the extreme radius is: at the fold (cubicle max, pillar min).
     d = np.abs(fold_dist(t.fold_proj, xx, yy))
     near = d < 1.0

@@ -7,15 +7,16 @@ from __future__ import annotations
 import numpy as np
 
 from ..calib.file import Calibration
-from ..calib.planar import lit_polygon
+from ..calib.planar import PlaneLayout, lit_polygon
 from .optics import RADIUS_STEP, blend_kernel
 
 
 def oracle_calibration(procam):
     """A calibration built from a simulator's ground truth, reproducing its blur exactly.
 
-    Geometry: the true homographies and fold lines, and the lit outline from mapping the
-    projector frame (cut at the fold) through them. Radiometry: the simulator's projector
+    Geometry: the true homographies and folds (one fold line for two planes; every fold, with
+    the planes on its sides, for three or more), and the lit outline from mapping the projector
+    frame (cut at the folds) through them. Radiometry: the simulator's projector
     response ``(v/255)^gamma``, its albedo and ambient maps. Kernels: the simulator renders its
     blur on a grid of radii (:data:`~rtdefocus.sim.optics.RADIUS_STEP`), each pixel blending the two grid
     kernels that bracket its radius with tent weights; those grid kernels are the PSFs here and
@@ -36,12 +37,23 @@ def oracle_calibration(procam):
     H = np.asarray(truth.H_cam_from_proj, dtype=np.float64)
     H_inv = np.stack([np.linalg.inv(h) for h in H])
     H_inv /= H_inv[:, 2:3, 2:3]
-    if truth.fold_proj is None:
-        fold_proj = fold_cam = np.zeros(3)
+    if truth.n_planes > 2:
+        # Every fold inside the frame, as the truth lists them (canonical, in plane-pair order).
+        folds = {"folds_proj": np.asarray(truth.folds_proj, np.float64),
+                 "folds_cam": np.asarray(truth.folds_cam, np.float64),
+                 "fold_planes": np.asarray(truth.fold_planes, np.int32)}
+        planes = PlaneLayout(truth.n_planes, folds["folds_proj"], folds["fold_planes"])
+        make = Calibration
     else:
-        fold_proj = np.asarray(truth.fold_proj, dtype=np.float64)
-        fold_cam = np.asarray(truth.fold_cam, dtype=np.float64)
-    polygon = lit_polygon((wp, hp), H, fold_proj)
+        # One fold at most, plane 0 on its negative side (the format-2 convention).
+        if truth.fold_proj is None:
+            fold_proj = fold_cam = np.zeros(3)
+        else:
+            fold_proj = np.asarray(truth.fold_proj, dtype=np.float64)
+            fold_cam = np.asarray(truth.fold_cam, dtype=np.float64)
+        folds, planes = {"fold_proj": fold_proj, "fold_cam": fold_cam}, fold_proj
+        make = Calibration.with_fold
+    polygon = lit_polygon((wp, hp), H, planes)
 
     # Radiometry: the simulator's projector response and its albedo/ambient maps.
     codes = np.arange(256, dtype=np.float64) / 255.0
@@ -76,9 +88,9 @@ def oracle_calibration(procam):
         yy, xx = np.unravel_index(int(np.argmin(dist)), dist.shape)
         points[i] = (xx, yy)
 
-    calib = Calibration.with_fold(
+    calib = make(
         projector_size=(wp, hp), camera_size=tuple(procam.camera_size),
-        H_cam_from_proj=H, H_proj_from_cam=H_inv, fold_proj=fold_proj, fold_cam=fold_cam,
+        H_cam_from_proj=H, H_proj_from_cam=H_inv, **folds,
         lit_polygon_cam=np.asarray(polygon, dtype=np.float64),
         response_lut=lut, ambient_proj=truth.ambient_proj.astype(np.float32),
         albedo_proj=truth.albedo_proj.astype(np.float32),

@@ -24,12 +24,23 @@ import cv2
 import numpy as np
 
 from ..calib.camera_response import linear_to_srgb, srgb_to_linear
-from ..calib.planar import undistort_points
+from ..calib.planar import canonical_line, undistort_points
 from ..errors import InputError
 from ..procam import check_pattern
 from .optics import BlurPlan
 from .patterns import test_pattern
-from .scene import PRESETS, Scene, _cast, _line_through, _look_at, _rot_z, _Wall
+from .scene import (
+    PRESETS,
+    ROOM_KINDS,
+    Scene,
+    _cast,
+    _line_through,
+    _look_at,
+    _rot_z,
+    plane_order,
+    room_folds,
+    scene_walls,
+)
 from .truth import GroundTruth
 
 log = logging.getLogger(__name__)
@@ -67,12 +78,13 @@ def _fabric(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
 
 
 class VirtualProCam:
-    """A virtual projector and camera looking at a two-wall corner (a :class:`rtdefocus.ProCam`).
+    """A virtual projector and camera looking at walls: a two-wall corner, one plane, or a
+    room's three planes (a :class:`rtdefocus.ProCam`).
 
     Parameters
     ----------
-    preset : one of :data:`PRESETS` ("cubicle", "pillar", "flat", "tilted", "offcenter") or a
-        :class:`Scene`.
+    preset : one of :data:`PRESETS` ("cubicle", "pillar", "flat", "tilted", "offcenter",
+        "fabric", "u_cubicle", "corner_ceiling") or a :class:`Scene`.
     projector_size, camera_size : (width, height) in pixels.
     noise : standard deviation of the camera's Gaussian noise, as a fraction of full scale
         (linear light, before the camera response); default 0.006. The options below that
@@ -106,7 +118,7 @@ class VirtualProCam:
         (undistorted) camera pixels.
 
     A preset named ``"webcam"`` (or ``"webcam_<scene>"``: ``webcam_pillar``, ``webcam_tilted``,
-    ``webcam_offcenter``, ``webcam_flat``) is an ordinary webcam in a lit office
+    ``webcam_offcenter``, ``webcam_flat``, ``webcam_u_cubicle``, ...) is an ordinary webcam in a lit office
     (:data:`WEBCAM`): sRGB camera, projector gamma 2.2, 5 % ambient, 5 % wall texture, noise
     2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments that are given
     (not None) override the preset's.
@@ -231,33 +243,23 @@ class VirtualProCam:
         f = 1.2 * wp                       # throw ratio ~1.2: frame ~2.1 m wide at 2.5 m
         self.K_proj = np.array([[f, 0.0, (wp - 1) / 2.0], [0.0, f, (hp - 1) / 2.0], [0.0, 0.0, 1.0]])
         self.R_proj = _rot_z(sc.roll_deg)  # world -> projector
-        # Fold: a vertical world line crossing the projector's centre row at fold_x_frac.
-        ray = self.R_proj.T @ np.linalg.solve(self.K_proj, [sc.fold_x_frac * wp - 0.5,
-                                                            (hp - 1) / 2.0, 1.0])
-        fold_pt = ray * (sc.fold_depth / ray[2])
-        fold_pt[1] = 0.0
-        self._fold_point = fold_pt
-        up = np.array([0.0, 1.0, 0.0])
-        walls = []
-        if sc.kind == "flat":
-            a = math.radians(sc.wall_angles_deg[0])
-            e = np.array([math.cos(a), 0.0, math.sin(a)])
-            walls.append(self._make_wall(fold_pt, e, up, half=False))
-        elif sc.kind in ("concave", "convex"):
-            sgn = -1.0 if sc.kind == "concave" else 1.0   # concave: walls come towards us
-            a0, a1 = (math.radians(v) for v in sc.wall_angles_deg)
-            walls.append(self._make_wall(fold_pt, np.array([-math.cos(a0), 0.0, sgn * math.sin(a0)]),
-                                         up, half=True))
-            walls.append(self._make_wall(fold_pt, np.array([math.cos(a1), 0.0, sgn * math.sin(a1)]),
-                                         up, half=True))
-        else:
-            raise InputError(f"Scene.kind must be 'concave', 'convex' or 'flat'; got {sc.kind!r}")
+        walls, self._fold_point = scene_walls(sc, self.K_proj, self.R_proj, self.projector_size)
         self._walls = walls
+        self._room = sc.kind in ROOM_KINDS
+        if self._room and len(sc.albedo) < len(walls):
+            raise InputError(f"scene of kind {sc.kind!r} needs {len(walls)} albedos; got {len(sc.albedo)}")
 
         # Lens: focus and aperture from the wanted radius range unless the scene fixes them.
         gx, gy = np.meshgrid(np.linspace(-0.5, wp - 0.5, 65), np.linspace(-0.5, hp - 0.5, 49))
         depth = self._depths_of(np.stack([gx.ravel(), gy.ravel()]))
+        if self._room:
+            # 1/D is convex and piecewise affine over a room seen from inside: its extremes lie
+            # at the frame corners (on the grid), on the folds or at the vertex.
+            folds = room_folds(walls, self.K_proj, self.R_proj, self.projector_size)
+            fold_depth = [(self.R_proj @ f.points.T)[2] for f in folds]
+            depth = np.concatenate([depth] + fold_depth)
         d_min, d_max = float(depth.min()), float(depth.max())
+        self._depth_range = (d_min, d_max)
         r_lo, r_hi = sc.blur_range_px
         fd = sc.focus_distance
         if fd is None:
@@ -269,20 +271,15 @@ class VirtualProCam:
             a = r_hi / (1.2 * 800 * max(abs(1 / fd - 1 / d_min), abs(1 / fd - 1 / d_max)))
         self.focus_distance, self.aperture_radius = float(fd), float(a)
 
-    @staticmethod
-    def _make_wall(origin, e, up, half: bool) -> _Wall:
-        n = np.cross(e, up)
-        n /= np.linalg.norm(n)
-        if n @ (np.zeros(3) - origin) < 0:       # face the projector
-            n = -n
-        return _Wall(n=n, d=float(n @ origin), origin=origin.copy(), e=e.copy() if half else None)
-
     def _build_projector_space(self) -> None:
         wp, hp = self.projector_size
         # Margin of projector space beyond the frame: blurred light spills over the frame edge.
-        r_max = float(self._radius_of(self._depths_of(np.array(
-            [[-0.5, wp - 0.5, -0.5, wp - 0.5, self.scene.fold_x_frac * wp],
-             [-0.5, -0.5, hp - 0.5, hp - 0.5, hp / 2]]))).max())
+        if self._room:     # r is monotonic in 1/D: its extremes are at the depth extremes
+            r_max = float(self._radius_of(np.array(self._depth_range)).max())
+        else:
+            r_max = float(self._radius_of(self._depths_of(np.array(
+                [[-0.5, wp - 0.5, -0.5, wp - 0.5, self.scene.fold_x_frac * wp],
+                 [-0.5, -0.5, hp - 0.5, hp - 0.5, hp / 2]]))).max())
         self._margin = m = int(math.ceil(r_max * max(self.chromatic) * 1.25)) + 3
         gx, gy = np.meshgrid(np.arange(-m, wp + m, dtype=np.float64),
                              np.arange(-m, hp + m, dtype=np.float64))
@@ -291,6 +288,8 @@ class VirtualProCam:
         if np.any(wall < 0):
             raise InputError(f"scene {self.preset!r}: {int((wall < 0).sum())} projector rays miss the "
                              "walls; make the walls less oblique or the fold nearer")
+        if self._room:
+            wall = self._number_planes(wall.reshape(shape)[m:m + hp, m:m + wp], wall)
         self._pad_depth = depth.reshape(shape)
         self._pad_plane = wall.reshape(shape).astype(np.int8)
         # Irradiance (module docstring): cos(theta) / (cos(psi) D^2); |d_p| = 1/cos(psi) as z_p = 1.
@@ -303,6 +302,15 @@ class VirtualProCam:
         self._pad_albedo = self._albedo(pts_w, wall).T.reshape(shape + (3,)).astype(np.float32)
         r = self._radius_of(self._pad_depth)
         self._pad_radius = np.stack([r * c for c in self.chromatic]).astype(np.float32)
+
+    def _number_planes(self, frame_wall: np.ndarray, wall: np.ndarray) -> np.ndarray:
+        """Put a room's walls in calibration order (:func:`~rtdefocus.sim.scene.plane_order`
+        of the frame's labels ``frame_wall``); returns the labels ``wall`` renumbered."""
+        order = plane_order(frame_wall, len(self._walls))
+        self._walls = [self._walls[k] for k in order]
+        new = np.empty(len(order), np.int64)
+        new[order] = np.arange(len(order))
+        return np.where(wall >= 0, new[np.maximum(wall, 0)], wall)
 
     def _cast_projector(self, pix: np.ndarray):
         """Cast projector pixels (2, N) (x, y); returns depth (N,), wall (N,), world points
@@ -330,12 +338,15 @@ class VirtualProCam:
         hit = wall >= 0
         out[:, hit] = base[wall[hit]].T
         if self.texture_amplitude > 0 and hit.any():
-            s = np.zeros(wall.size)
+            s, y = np.zeros(wall.size), pts_w[1].copy()
             for i, w in enumerate(self._walls):
                 sel = wall == i
+                if w.tex is not None:       # a room's wall or ceiling: its own two axes
+                    s[sel], y[sel] = w.tex @ (pts_w[:, sel] - w.origin[:, None])
+                    continue
                 e = w.e if w.e is not None else np.cross([0.0, 1.0, 0.0], w.n)
                 s[sel] = e @ (pts_w[:, sel] - w.origin[:, None])
-            y, ph = pts_w[1], self._tex_phase
+            ph = self._tex_phase
             # Faint (±texture) smooth pattern fixed to the wall, in metres along it.
             tex = 1.0 + 0.5 * self.texture_amplitude * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
                                 * np.sin(2 * math.pi * y / 0.29 + ph[0, 1])
@@ -354,6 +365,9 @@ class VirtualProCam:
         # projector's frame, so a rolled projector (the tilted preset) rolls the camera too.
         center = self.R_proj.T @ np.asarray(sc.camera_position, dtype=np.float64)
         down = self.R_proj.T @ np.array([0.0, 1.0, 0.0])
+        if self._room and any(w.n @ center < w.d for w in self._walls):
+            raise InputError(f"scene {self.preset!r}: the camera is outside the room; put it "
+                             "nearer the projector (Scene.camera_position)")
         # Outline of the lit area (frame + spill margin), as 3-D points (3, N).
         n = 200
         lo_x, hi_x, lo_y, hi_y = -m, wp - 1 + m, -m, hp - 1 + m
@@ -423,22 +437,7 @@ class VirtualProCam:
             planes.append(np.concatenate([n_p, [w.d]]))
             H = self.K_cam @ (R_cp + np.outer(t_cp, n_p) / w.d) @ Kp_inv
             hs.append(H / H[2, 2])
-        fold_proj = fold_cam = None
-        if len(self._walls) == 2:
-            f0 = self._fold_point
-            p_hi, p_lo = f0 + [0.0, -1.0, 0.0], f0 + [0.0, 1.0, 0.0]
-            inside0 = f0 + 0.3 * self._walls[0].e + [0.0, 0.0, 0.0]
-
-            def proj(X):
-                x = self.K_proj @ (self.R_proj @ X)
-                return x[:2] / x[2]
-
-            def cam(X):
-                x = self.K_cam @ (self.R_cam @ X + self.t_cam)
-                return x[:2] / x[2]
-
-            fold_proj = _line_through(proj(p_hi), proj(p_lo), proj(inside0))
-            fold_cam = _line_through(cam(p_hi), cam(p_lo), cam(inside0))
+        fold_proj, fold_cam, folds_proj, folds_cam, fold_planes = self._folds()
         shade = self._pad_shade[fr]
         alb = self._pad_albedo[fr]
         self.truth = GroundTruth(
@@ -447,6 +446,7 @@ class VirtualProCam:
             plane_map=self._pad_plane[fr].copy(),
             depth_map=self._pad_depth[fr].astype(np.float32),
             fold_proj=fold_proj, fold_cam=fold_cam,
+            folds_proj=folds_proj, folds_cam=folds_cam, fold_planes=fold_planes,
             H_cam_from_proj=np.stack(hs),
             albedo_proj=(self.exposure * alb * shade[..., None]).astype(np.float32),
             ambient_proj=(self.exposure * alb * self.ambient).astype(np.float32),
@@ -464,6 +464,44 @@ class VirtualProCam:
                    "camera_plane_map": self._cam_plane},
         )
 
+    def _folds(self):
+        """fold_proj, fold_cam (the one fold of two planes, plane 0 negative; else None) and
+        folds_proj, folds_cam (m, 3), fold_planes (m, 2): every fold inside the frame,
+        canonically oriented, [plane on the negative side, plane on the positive side]."""
+        def proj(X):
+            x = self.K_proj @ (self.R_proj @ X)
+            return x[:2] / x[2]
+
+        def cam(X):
+            x = self.K_cam @ (self.R_cam @ X + self.t_cam)
+            return x[:2] / x[2]
+
+        fold_proj = fold_cam = None
+        folds = []                                    # (line_proj, line_cam, [neg, pos])
+        if self._room:
+            for f in room_folds(self._walls, self.K_proj, self.R_proj, self.projector_size):
+                xa, xb = f.points[0], f.points[-1]
+                xi = 0.5 * (xa + xb) + 0.01 * f.side_i    # 1 cm into wall i
+                folds.append((_line_through(proj(xa), proj(xb), proj(xi)),
+                              _line_through(cam(xa), cam(xb), cam(xi)), [f.i, f.j]))
+            if len(self._walls) == 2 and folds:
+                fold_proj, fold_cam = folds[0][0], folds[0][1]
+        elif len(self._walls) == 2:
+            f0 = self._fold_point
+            p_hi, p_lo = f0 + [0.0, -1.0, 0.0], f0 + [0.0, 1.0, 0.0]
+            inside0 = f0 + 0.3 * self._walls[0].e + [0.0, 0.0, 0.0]
+            fold_proj = _line_through(proj(p_hi), proj(p_lo), proj(inside0))
+            fold_cam = _line_through(cam(p_hi), cam(p_lo), cam(inside0))
+            folds.append((fold_proj, fold_cam, [0, 1]))
+        folds_proj, folds_cam, fold_planes = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), np.int64)
+        if folds:
+            for k, (lp, lc, pair) in enumerate(folds):
+                if not np.array_equal(canonical_line(lp), lp):
+                    folds[k] = (-lp, -lc, pair[::-1])
+            folds_proj = np.stack([f[0] for f in folds])
+            folds_cam = np.stack([f[1] for f in folds])
+            fold_planes = np.array([f[2] for f in folds], np.int64)
+        return fold_proj, fold_cam, folds_proj, folds_cam, fold_planes
 
     # ----------------------------------------------------------------------- rendering
     def defocus(self, lin: np.ndarray) -> np.ndarray:

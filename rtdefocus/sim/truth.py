@@ -18,10 +18,18 @@ class GroundTruth:
     ----------
     radius_map : (Hp, Wp) float32, blur radius in projector px (green channel).
     radius_rgb : (3, Hp, Wp) float32, blur radius per channel (radius_map × chromatic scale).
-    plane_map : (Hp, Wp) int8, wall seen by each projector pixel (0/1; all 0 for ``flat``).
+    plane_map : (Hp, Wp) int8, wall seen by each projector pixel, 0..n_planes-1, numbered by
+        their centroid x in the projector (ties within 5 % of the width by centroid y); for two
+        walls the left one is 0; all 0 for ``flat``.
     depth_map : (Hp, Wp) float32, depth of that surface point along the projector axis (m).
     fold_proj, fold_cam : (3,) float64 line ``a x + b y + c = 0``, ``a² + b² = 1``, plane 0 where
-        it is negative; None for ``flat``.
+        it is negative, for two planes; None for one (``flat``) or three and more.
+    folds_proj, folds_cam : (m, 3) float64, every fold inside the projector frame (one per pair
+        of planes that meet there), normalised like ``fold_proj`` and oriented by
+        :func:`~rtdefocus.calib.planar.canonical_line` in the projector (normal towards +x; +y
+        when ``|b| > |a|``), listed in order of their plane pair; ``folds_cam`` are the same
+        folds in ideal camera pixels, with the same planes on the same sides.
+    fold_planes : (m, 2) int64, [plane on the fold's negative side, plane on its positive side].
     H_cam_from_proj : (n_planes, 3, 3) float64 plane-induced homographies (H[2, 2] = 1).
     albedo_proj : (Hp, Wp, 3) float32, α(x): camera linear light added by a full-on projector
         pixel in focus (exposure × albedo × irradiance shading).
@@ -40,7 +48,7 @@ class GroundTruth:
     exposure_drift : the camera gain's relative change per capture.
     extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the
         projector frame; ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
-        (-1: none); ``margin``, projector px simulated beyond the frame edge.
+        (-1: none), numbered like ``plane_map``; ``margin``, projector px simulated beyond the frame edge.
     """
 
     radius_map: np.ndarray
@@ -68,6 +76,9 @@ class GroundTruth:
     camera_response_kind: str = "gamma"
     distortion: tuple[float, float] = (0.0, 0.0)
     exposure_drift: float = 0.0
+    folds_proj: np.ndarray | None = None
+    folds_cam: np.ndarray | None = None
+    fold_planes: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
     def kernel_at(self, x: float, y: float, size: int | None = None, channel: int = 1) -> np.ndarray:
