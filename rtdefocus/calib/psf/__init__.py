@@ -353,7 +353,7 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
 def camera_sides(calib: Calibration) -> list[np.ndarray]:
     """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
     undistorted camera coordinates); one all-true mask for a single plane."""
-    from ..planar import undistort_points
+    from ..lens import ideal_points
 
     wc, hc = calib.camera_size
     fold = getattr(calib, "fold_cam", None)
@@ -361,8 +361,7 @@ def camera_sides(calib: Calibration) -> list[np.ndarray]:
         return [np.ones((hc, wc), bool)]
     yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
     xy = np.stack([xx, yy], axis=-1)
-    if getattr(calib, "camera_distortion", None) is not None:
-        xy = undistort_points(xy, calib.camera_distortion, calib.camera_size)
+    xy = ideal_points(calib, xy)
     neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
     return [neg, ~neg]
 
