@@ -362,3 +362,35 @@ def test_undistort_image_puts_a_point_where_the_model_says():
     plain = Calibration.__new__(Calibration)
     plain.camera_distortion = None
     assert ideal_view(plain, img) is img                     # an ideal lens costs nothing
+
+
+# --------------------------------------------------------------------------- diagnostics
+def test_camera_picture_shows_responses_lens_and_skipped_dots():
+    """setup_camera.png: the distortion grid bends only for a real lens, and a skipped dot is
+    crossed out in red where it is, with its reason."""
+    from rtdefocus.calib.camera_diagnostics import (
+        camera_diagnostics,
+        distortion_panel,
+        skipped_panel,
+    )
+    from rtdefocus.calib.psf import _skip_reason
+
+    calib = sim.oracle_calibration(sim.VirtualProCam("webcam", **SMALL))
+    assert np.allclose(calib.camera_distortion, (-0.05, 0.0))
+    img = camera_diagnostics(calib)
+    assert img.shape[0] == 300 and img.dtype == np.uint8 and img.shape[1] > 900
+    bent = distortion_panel(calib)
+    calib.camera_distortion = np.zeros(2)
+    straight = distortion_panel(calib)
+    cyan = lambda p: (p[..., 2] > 200) & (p[..., 1] > 180) & (p[..., 0] < 60)   # noqa: E731
+    assert (cyan(bent) != cyan(straight)).mean() > 0.01
+    x, y = 160, 120
+    before = skipped_panel(calib)
+    calib.meta["psf"] = {"skipped": [[x, y]], "skipped_why": [_skip_reason(1.5)]}
+    after = skipped_panel(calib)
+    s = 300 / 240
+    patch = after[int(y * s) - 4:int(y * s) + 5, int(x * s) - 4:int(x * s) + 5]
+    assert ((patch[..., 0] > 200) & (patch[..., 1] < 80)).sum() >= 5
+    assert (after != before).any(axis=2).sum() > 200          # the reason's text, too
+    assert _skip_reason(1.5) == "too faint (SNR 1.5 < 3)"
+    assert _skip_reason(0.0) == "no light above the background"

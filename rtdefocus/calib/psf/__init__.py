@@ -73,6 +73,7 @@ from ..file import Calibration
 from ..radiometry import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
+    _MIN_SNR,
     Measurement,
     _clean,
     _dot_geometry,
@@ -297,6 +298,7 @@ class PsfRun:
                             (self.blind if key[1] else self.model).kind.items()},
             "median_snr": round(float(np.median(meas.snr[sel])), 1),
             "skipped": [[int(x), int(y)] for x, y in plan.points[skipped]],
+            "skipped_why": [_skip_reason(float(v)) for v in meas.snr[sel][skipped]],
             "iso_average": {"tolerance": o.iso_tolerance, "distance": o.iso_distance,
                             "median_n_eff": round(float(np.median(n_eff)), 2)},
         }
@@ -307,6 +309,15 @@ class PsfRun:
 _BG_SMOOTH = 2.0
 # Fewest measured dots a plane (or the fold) needs: its kernel field is blended from them.
 _MIN_MEASURED = 3
+
+
+def _skip_reason(snr: float) -> str:
+    """Why a dot was skipped, from its measured signal-to-noise ratio (the diagnostics)."""
+    if not snr > 0:
+        return "no light above the background"
+    if snr < _MIN_SNR:
+        return f"too faint (SNR {snr:.1f} < {_MIN_SNR:g})"
+    return "no kernel shape left after cleaning"
 
 
 def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.ndarray:
