@@ -394,3 +394,36 @@ def test_camera_picture_shows_responses_lens_and_skipped_dots():
     assert (after != before).any(axis=2).sum() > 200          # the reason's text, too
     assert _skip_reason(1.5) == "too faint (SNR 1.5 < 3)"
     assert _skip_reason(0.0) == "no light above the background"
+
+
+def test_a_lens_that_fails_the_first_fit_is_measured_by_the_rough_one():
+    """fit_with_lens: the first fit raises (too few inliers), the looser one measures k1, the
+    fit on the undistorted detection succeeds; with no lens to blame the first error stands."""
+    from types import SimpleNamespace
+
+    from rtdefocus.calib.lens import fit_with_lens
+    from rtdefocus.calib.structured_light import DetectedLine, LineDetection
+
+    size = (480, 360)
+    frame = np.zeros((360, 480), np.float32)
+    det = LineDetection([DetectedLine("h", 10.0, np.arange(5, 400, dtype=np.int32),
+                                      np.full(395, 100.0))], {"v": 0, "h": 1}, frame, frame,
+                        frame > 0, np.zeros((360, 480, 3), np.uint8))
+
+    def result(k1, rms0, rms1):
+        return SimpleNamespace(meta={"geometry": {"distortion": {
+            "k1": k1, "rms_px_without": rms0, "rms_px": rms1}}}, camera_distortion=None)
+
+    def fit(d):
+        if d is det:
+            raise CalibrationError("only 50 % of the line crossings fit")
+        return result(0.0, 0.07, 0.07)
+
+    cal = fit_with_lens(fit, det, size, rough=lambda d: result(-0.2, 0.9, 0.08))
+    assert np.allclose(cal.camera_distortion, (-0.2, 0.0))
+    d = cal.meta["geometry"]["distortion"]
+    assert d["applied"] and d["first_fit_failed"] and d["rms_px"] == 0.07
+    with pytest.raises(CalibrationError, match="only 50 %"):
+        fit_with_lens(fit, det, size, rough=lambda d: result(-0.0001, 0.9, 0.9))
+    with pytest.raises(CalibrationError, match="only 50 %"):
+        fit_with_lens(fit, det, size, correct=False, rough=lambda d: result(-0.2, 0.9, 0.08))

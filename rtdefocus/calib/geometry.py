@@ -149,11 +149,13 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     detection = det.result()
     camera_size = tuple(procam.camera_size)
 
-    def fit(detection: LineDetection) -> Calibration:
+    def fit(detection: LineDetection, threshold: float = ransac_threshold) -> Calibration:
         return _fit_geometry(detection, pats, seq, samples, det, camera_size, min_kink_deg,
-                             fold_band, ransac_threshold, t_start)
+                             fold_band, threshold, t_start)
 
-    return fit_with_lens(fit, detection, camera_size, correct=bool(undistort))
+    # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
+    return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
+                         rough=lambda d: fit(d, 4.0 * ransac_threshold))
 
 
 def _fit_geometry(detection: LineDetection, pats: LinePatterns, seq: list, samples: int,

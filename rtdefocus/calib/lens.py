@@ -34,11 +34,13 @@ log = logging.getLogger(__name__)
 
 __all__ = ["lens_k", "ideal_points", "observed_points", "observed_maps", "undistort_image",
            "ideal_view", "lit_mask_observed", "undistort_line", "undistort_detection",
-           "fit_with_lens", "MIN_EFFECT_PX"]
+           "fit_with_lens", "MIN_EFFECT_PX", "MIN_EXPLAINED"]
 
 #: Largest displacement (camera px, at the frame corners) of a distortion that is not worth
 #: correcting: below it the estimate is within its own noise and a refit only costs time.
 MIN_EFFECT_PX = 0.25
+#: Share of the crossings' RMS misfit (k1 = 0) the fitted k1 must remove to be applied.
+MIN_EXPLAINED = 0.1
 
 
 def lens_k(calib_or_k) -> tuple[float, float] | None:
@@ -166,41 +168,97 @@ def undistort_detection(det: LineDetection, k: tuple[float, float],
 
 
 # --------------------------------------------------------------------------- the geometry step
+class _HoldWarnings(logging.Filter):
+    """Holds back the warnings a logger emits (the first, distorted fit's "only 80 % of the
+    crossings fit" is a symptom the lens correction then cures)."""
+
+    def __init__(self, name: str):
+        super().__init__()
+        self.logger = logging.getLogger(name)
+        self.held: list[logging.LogRecord] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.WARNING:
+            self.held.append(record)
+            return False
+        return True
+
+    def __enter__(self):
+        self.logger.addFilter(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.logger.removeFilter(self)
+
+    def release(self) -> None:
+        for record in self.held:
+            self.logger.handle(record)
+
+
 def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetection,
                   camera_size: tuple[int, int], *, correct: bool = True,
-                  min_effect_px: float = MIN_EFFECT_PX):
+                  rough: Callable[[LineDetection], object] | None = None,
+                  min_effect_px: float = MIN_EFFECT_PX, logger: str = __package__ + ".geometry"):
     """Run the geometry fit with the lens's radial distortion taken out.
 
     ``fit(detection) -> Calibration`` is the geometry stage's fit (kinks, fold, homographies);
     it reports, in ``meta["geometry"]["distortion"]``, the k1 that best straightens its planes'
     crossings (:func:`~.homography.estimate_radial_k1`). When that k1 moves the frame corners by
-    more than ``min_effect_px`` (and ``correct``), the detection is undistorted with it
+    more than ``min_effect_px`` and removes at least :data:`MIN_EXPLAINED` of the crossings'
+    RMS misfit (and ``correct``), the detection is undistorted with it
     (:func:`undistort_detection`) and fitted again; ``calib.camera_distortion`` is set to
     (k1, 0) and the homographies, fold, outline (and so the display rectangle) are in ideal
     camera pixels. ``meta["geometry"]["distortion"]`` then holds ``k1``, ``k2``, ``applied``,
     the corner displacement ``corner_px``, the RMS without / with the model and the residual
     k1 the second fit still sees.
+
+    A lens strong enough that the first fit fails (too few crossings fit one homography) is
+    estimated from ``rough(detection)`` (the same fit with a looser inlier distance) instead;
+    the first fit's error is raised when that does not explain it. Warnings of the first fit
+    (logger ``logger``) are held back, and repeated only when no correction follows.
     """
+    from ..errors import CalibrationError
     from .planar import distortion_scale
 
-    calib = fit(detection)
+    first_error = None
+    try:
+        with _HoldWarnings(logger) as held:
+            calib = fit(detection)
+    except CalibrationError as exc:
+        if not (correct and rough is not None):
+            held.release()
+            raise
+        first_error = exc
+        try:
+            with _HoldWarnings(logger):
+                calib = rough(detection)
+        except CalibrationError:
+            held.release()
+            raise exc from None
     d0 = dict(calib.meta["geometry"].get("distortion", {}))
     k1 = float(d0.get("k1", 0.0))
     corner_px = abs(k1) * distortion_scale(camera_size)[2]
     info = {"k1": round(k1, 5), "k2": 0.0, "corner_px": round(corner_px, 3),
             "rms_px_without": d0.get("rms_px_without"), "rms_px": d0.get("rms_px"),
             "applied": False}
-    if correct and corner_px > min_effect_px:
+    rms0, rms1 = d0.get("rms_px_without"), d0.get("rms_px")
+    # Worth it when the lens moves the corners visibly *and* explains part of the crossings'
+    # misfit: on an ideal lens k1 is the estimate's noise and leaves the misfit as it was.
+    explains = rms0 is not None and rms1 is not None and rms1 < (1.0 - MIN_EXPLAINED) * rms0
+    if correct and corner_px > min_effect_px and explains:
         k = (k1, 0.0)
         ideal = undistort_detection(detection, k, camera_size)
         calib = fit(ideal)
         residual = calib.meta["geometry"].get("distortion", {})
         info.update(applied=True, residual_k1=residual.get("k1"),
-                    rms_px=residual.get("rms_px_without"))
+                    rms_px=residual.get("rms_px_without"), first_fit_failed=first_error is not None)
         calib.camera_distortion = np.array(k, np.float64)
         log.info("geometry: lens k1 = %.4f (%.2f px at the corners) taken out; RMS %s -> %s px",
                  k1, corner_px, info["rms_px_without"], info["rms_px"])
     else:
+        held.release()
+        if first_error is not None:
+            raise first_error
         calib.camera_distortion = np.zeros(2, np.float64)
     calib.meta["geometry"]["distortion"] = info
     return calib
