@@ -25,6 +25,7 @@ import numpy as np
 
 from . import sim
 from .calib import calibrate
+from .calib.camera_diagnostics import camera_diagnostics
 from .calib.file import json_default
 from .calib.geometry_diagnostics import geometry_diagnostics
 from .calib.psf import psf_diagnostics
@@ -163,6 +164,7 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     calib = calibrate(procam, progress=progress)
     files.append(calib.save(out / "setup.npz"))
     files.append(write_image(out / "calibration_geometry.png", geometry_diagnostics(calib)))
+    files.append(write_image(out / "calibration_camera.png", camera_diagnostics(calib)))
     files.append(write_image(out / "calibration_kernels.png",
                              psf_diagnostics(calib, truth_radius=procam.truth.radius_map)))
 

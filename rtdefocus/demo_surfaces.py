@@ -17,7 +17,7 @@ from . import sim
 from .compensate import Compensator
 from .imageio import write_image
 from .panels import crop_box, fit_height, hstack, label
-from .scores import coefficient_of_variation, psnr_affine, rect_mask
+from .scores import camera_view, coefficient_of_variation, psnr_affine, rect_mask
 
 __all__ = ["SURFACE_VIEWS", "run_surfaces"]
 
@@ -57,8 +57,8 @@ def run_surfaces(out: Path, images: dict[str, np.ndarray], *, seed: int = 0,
     mask = _inset(calib.display_rect((120, 90)), (hc, wc))
     figures: dict = {"cov": {}, "psnr_white": {}, "clipped": {}}
     for title, comp in comps.items():
-        figures["cov"][title] = coefficient_of_variation(procam.capture(comp.compensate(grey)),
-                                                         mask)
+        view = camera_view(procam, calib, comp.compensate(grey))
+        figures["cov"][title] = coefficient_of_variation(view, mask)
     files = []
     for name, image in images.items():
         rect = calib.display_rect(image.shape[1::-1])
@@ -66,7 +66,7 @@ def run_surfaces(out: Path, images: dict[str, np.ndarray], *, seed: int = 0,
         white = on_white_wall(image, rect, (hc, wc))
         panels, scores = [], {}
         for title, comp in comps.items():
-            view = procam.capture(comp.compensate(image, warm_start=False))
+            view = camera_view(procam, calib, comp.compensate(image, warm_start=False))
             scores[title] = psnr_affine(view, white, m)
             panels.append(label(fit_height(view[rows, cols], 300), title))
         figures["clipped"][name] = comps["defocus + flatten"].last_info.get("clipped")

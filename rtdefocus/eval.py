@@ -31,7 +31,7 @@ from .errors import InputError
 from .eval_layouts import calibrate_psf_layouts
 from .evalreport import eval_markdown, plot_convergence
 from .samples import demo_images
-from .scores import psnr, rect_mask, score_image
+from .scores import camera_view, psnr, rect_mask, score_image
 from .sim import oracle_calibration
 
 log = logging.getLogger(__name__)
@@ -208,10 +208,10 @@ def convergence_curves(procam, calib, image: np.ndarray, *, method: str = "ycbcr
     wc, hc = calib.camera_size
     mask = rect_mask(calib.display_rect((w, h)), (hc, wc))
     warped = Compensator(calib, method="none").warp(image)
-    reference = procam.capture(warped, sharp=True)
+    reference = camera_view(procam, calib, warped, sharp=True)
 
     def score(frame: np.ndarray) -> float:
-        return psnr(procam.capture(frame), reference, mask)
+        return psnr(camera_view(procam, calib, frame), reference, mask)
 
     curves = []
     for backend in backends:

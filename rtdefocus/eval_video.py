@@ -39,7 +39,7 @@ from . import sim
 from .calib.file import Calibration, json_default
 from .compensate import Compensator
 from .errors import InputError
-from .scores import psnr, rect_mask
+from .scores import camera_view, psnr, rect_mask
 from .sim import oracle_calibration
 from .stream.controls import IterationBudget
 
@@ -264,7 +264,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
     memo = _Memo()
 
     def capture(frame, sharp=False):
-        return memo.get(("capture", sharp), frame, lambda: procam.capture(frame, sharp=sharp))
+        return memo.get(("capture", sharp), frame, lambda: camera_view(procam, calib, frame, sharp=sharp))
 
     def cold_solve(image, iters):
         def solve():

@@ -19,7 +19,7 @@ import numpy as np
 from .errors import InputError
 from .reference.lut import decode_lut, encode_lut, increasing_lut
 
-__all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "edge_pixels", "ImageScores",
+__all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "camera_view", "edge_pixels", "ImageScores",
            "score_image", "coefficient_of_variation", "psnr_affine"]
 
 # Canny thresholds for the edge-pixel counts (the paper's Table 1 gives none; OpenCV's usual pair).
@@ -150,6 +150,16 @@ def rect_mask(rect: tuple[int, int, int, int], shape: tuple[int, int]) -> np.nda
     return m
 
 
+def camera_view(procam, calib, frame: np.ndarray, sharp: bool = False) -> np.ndarray:
+    """The camera's view of ``frame`` in ``calib``'s ideal camera pixels (the lens's distortion
+    taken out, :func:`rtdefocus.calib.lens.ideal_view`), so the display rectangle and the fold
+    band crop what they say. ``sharp`` is the simulator's option (no blur, no noise)."""
+    from .calib.lens import ideal_view
+
+    view = procam.capture(frame, sharp=True) if sharp else procam.capture(frame)
+    return ideal_view(calib, view)
+
+
 def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
                 fold_band_px: float = 24.0, headroom: tuple[float, float] | None = None
                 ) -> tuple[ImageScores, dict[str, np.ndarray]]:
@@ -172,9 +182,10 @@ def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
     warped = geometry.warp(image)
     if headroom is not None:
         warped = encode_lut(decode_lut(warped, calib.lut, headroom), increasing_lut(calib.lut))
-    reference = procam.capture(warped, sharp=True)
-    geometry_view = procam.capture(warped)
-    raw_view = procam.capture(cv2.resize(image, calib.projector_size, interpolation=cv2.INTER_AREA))
+    reference = camera_view(procam, calib, warped, sharp=True)
+    geometry_view = camera_view(procam, calib, warped)
+    raw_view = camera_view(procam, calib,
+                           cv2.resize(image, calib.projector_size, interpolation=cv2.INTER_AREA))
     scores = ImageScores(name)
     views = {"none": geometry_view}
     frames = {"none": warped}
@@ -183,7 +194,7 @@ def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
         frame = comp.compensate(image, warm_start=False)
         scores.seconds[method] = time.perf_counter() - t0
         frames[method] = frame
-        views[method] = procam.capture(frame)
+        views[method] = camera_view(procam, calib, frame)
     for method, view in views.items():
         scores.psnr[method] = psnr(view, reference, mask)
         scores.ssim[method] = ssim(view, reference, mask)

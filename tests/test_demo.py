@@ -25,6 +25,7 @@ def test_demo_writes_pictures_and_tables(demo_result):
     out, result = demo_result
     names = {p.name for p in out.iterdir()}
     for name in ("setup.npz", "calibration_geometry.png", "calibration_kernels.png",
+                 "calibration_camera.png",
                  "chelsea_side_by_side.png", "text_side_by_side.png",
                  "text_headroom_side_by_side.png", "table.md", "table.json"):
         assert name in names, f"{name} missing from {sorted(names)}"

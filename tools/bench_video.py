@@ -61,7 +61,7 @@ def section_cost(args, out: dict) -> None:
     from rtdefocus.compensate import Compensator
     from rtdefocus.reference.blur import psf_support, trim_psfs
     from rtdefocus.samples import photographs
-    from rtdefocus.scores import psnr, rect_mask
+    from rtdefocus.scores import camera_view, psnr, rect_mask
     from rtdefocus.sim import oracle_calibration
 
     procam = sim.VirtualProCam("cubicle", projector_size=args.size,
@@ -116,10 +116,10 @@ def section_cost(args, out: dict) -> None:
     wc, hc = procam.camera_size
     mask = rect_mask(rect, (hc, wc))
     warped = Compensator(calib, method="none").warp(image)
-    ref = procam.capture(warped, sharp=True)
-    geo = psnr(procam.capture(warped), ref, mask)
+    ref = camera_view(procam, calib, warped, sharp=True)
+    geo = psnr(camera_view(procam, calib, warped), ref, mask)
     for r in rows:
-        p = psnr(procam.capture(frames[r["variant"]]), ref, mask)
+        p = psnr(camera_view(procam, calib, frames[r["variant"]]), ref, mask)
         r["psnr_8it_gain_db"] = p - geo
     print("\n| variant | fixed ms | per iteration ms | x fixed | x per iteration | "
           "gain at 8 it (dB) |\n|---|---|---|---|---|---|")

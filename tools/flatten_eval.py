@@ -21,7 +21,14 @@ import numpy as np
 
 import rtdefocus as rd
 from rtdefocus.samples import photographs
-from rtdefocus.scores import coefficient_of_variation, near_fold_mask, psnr, psnr_affine, rect_mask
+from rtdefocus.scores import (
+    camera_view,
+    coefficient_of_variation,
+    near_fold_mask,
+    psnr,
+    psnr_affine,
+    rect_mask,
+)
 
 
 def inset_mask(rect, shape, frac=0.05):
@@ -47,7 +54,7 @@ def evaluate(procam, calib, images: dict, backend="numpy", iterations=None) -> d
     grey = np.full((90, 120, 3), 128, np.uint8)
     mask = inset_mask(calib.display_rect((120, 90)), (hc, wc))
     for s in ("keep", "flatten"):
-        view = procam.capture(comps[(s, "ycbcr")].compensate(grey))
+        view = camera_view(procam, calib, comps[(s, "ycbcr")].compensate(grey))
         res["cov"][s] = coefficient_of_variation(view, mask)
     for name, img in images.items():
         h, w = img.shape[:2]
@@ -59,11 +66,11 @@ def evaluate(procam, calib, images: dict, backend="numpy", iterations=None) -> d
             geo = comps[(s, "none")].compensate(img)
             ours = comps[(s, "ycbcr")].compensate(img, warm_start=False)
             res["clipped"][f"{name}/{s}"] = comps[(s, "ycbcr")].last_info.get("clipped")
-            view = procam.capture(ours)
-            sharp = procam.capture(geo, sharp=True)
+            view = camera_view(procam, calib, ours)
+            sharp = camera_view(procam, calib, geo, sharp=True)
             res["psnr_affine"][f"{name}/{s}"] = psnr_affine(view, white, m)
             res["fold_gain"][f"{name}/{s}"] = (psnr(view, sharp, band)
-                                               - psnr(procam.capture(geo), sharp, band))
+                                               - psnr(camera_view(procam, calib, geo), sharp, band))
     return res
 
 

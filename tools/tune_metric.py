@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rtdefocus import sim  # noqa: E402
 from rtdefocus.compensate import Compensator  # noqa: E402
 from rtdefocus.samples import photographs, text_slide  # noqa: E402
-from rtdefocus.scores import near_fold_mask, psnr, rect_mask, ssim  # noqa: E402
+from rtdefocus.scores import camera_view, near_fold_mask, psnr, rect_mask, ssim  # noqa: E402
 from rtdefocus.sim import oracle_calibration  # noqa: E402
 
 
@@ -57,8 +57,8 @@ class Scene:
         for name, img in images.items():
             rect = self.calib.display_rect((img.shape[1], img.shape[0]))
             warped = geo.warp(img)
-            ref = self.procam.capture(warped, sharp=True)
-            base = self.procam.capture(warped)
+            ref = camera_view(self.procam, self.calib, warped, sharp=True)
+            base = camera_view(self.procam, self.calib, warped)
             mask = rect_mask(rect, (hc, wc))
             self.items.append((name, warped, ref, mask, scores(base, ref, mask)))
 
@@ -67,7 +67,7 @@ class Scene:
         out = []
         for name, warped, ref, mask, base in self.items:
             comp.reset()
-            cam = self.procam.capture(comp.compensate_warped(warped))
+            cam = camera_view(self.procam, self.calib, comp.compensate_warped(warped))
             out.append((name, *(a - b for a, b in zip(scores(cam, ref, mask), base, strict=True))))
         return out
 
@@ -178,10 +178,10 @@ def study_table(scenes, args) -> list[dict]:
         print(f"  {'image':10s}" + "".join(f"{m:>28s}" for m in ("geometry", *comps, "geometry+hr",
                                                                   "ycbcr+hr")))
         for name, warped, ref, mask, _ in sc.items:
-            views = {"geometry": sc.procam.capture(warped)}
+            views = {"geometry": camera_view(sc.procam, sc.calib, warped)}
             for m, comp in comps.items():
                 comp.reset()
-                views[m] = sc.procam.capture(comp.compensate_warped(warped))
+                views[m] = camera_view(sc.procam, sc.calib, comp.compensate_warped(warped))
             refs = {m: ref for m in views}
             # Headroom changes the target itself (less contrast): judge it against the sharp
             # display of its own target, and its geometry-only display against the same.
@@ -189,9 +189,9 @@ def study_table(scenes, args) -> list[dict]:
             lut = np.asarray(sc.calib.lut, np.float32)
             mapped = encode_lut(decode_lut(warped, increasing_lut(lut), (lo, hi)), increasing_lut(lut))
             comp_h = Compensator(sc.calib, backend=args.backend, method="ycbcr", headroom=(lo, hi))
-            views["geometry+hr"] = sc.procam.capture(mapped)
-            views["ycbcr+hr"] = sc.procam.capture(comp_h.compensate_warped(warped))
-            refs["geometry+hr"] = refs["ycbcr+hr"] = sc.procam.capture(mapped, sharp=True)
+            views["geometry+hr"] = camera_view(sc.procam, sc.calib, mapped)
+            views["ycbcr+hr"] = camera_view(sc.procam, sc.calib, comp_h.compensate_warped(warped))
+            refs["geometry+hr"] = refs["ycbcr+hr"] = camera_view(sc.procam, sc.calib, mapped, sharp=True)
             row = {"preset": sc.procam.preset, "image": name}
             cells = []
             for m, cam in views.items():

@@ -1,5 +1,7 @@
 """Camera exposure checks of the radiometry stage: over- and under-exposure of the white frame,
-and exposure / white-balance drift between two white frames taken apart in time.
+and exposure / white-balance drift between two white frames taken apart in time (the
+geometry stage's first frame against the radiometry stage's first, and that one against the
+radiometry stage's last).
 
 A webcam's auto-exposure and auto white balance change its gain while the patterns change
 (a dark dot pattern after a white frame brightens the next frames), which bends every ratio
@@ -22,9 +24,11 @@ _MIN_WHITE_CODE = 64.0
 # Relative change of the white frame (median over the lit area, any channel) that is drift.
 DRIFT_TOLERANCE = 0.02
 
-_LOCK_HINT = ("Lock the camera's auto-exposure and auto white balance (docs/hardware.md, "
-              "'Lock the camera': e.g. v4l2-ctl on Linux, or the camera's own settings app), "
-              "then calibrate again")
+_LOCK_HINT = ("Lock the camera's auto-exposure and auto white balance: run `rtdefocus calibrate "
+              "... --lock` (optionally --exposure MS), which sets them through OpenCV and says "
+              "which property the driver refused; lock those with the camera's own tool "
+              "(docs/hardware.md, 'Lock the camera': e.g. v4l2-ctl on Linux, or the camera's "
+              "settings app), then calibrate again")
 
 
 def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,

@@ -38,6 +38,7 @@ from .capture import Capturer
 from .file import Calibration
 from .fold import Kink, find_kink, fit_fold, fold_to_projector
 from .homography import estimate_radial_k1, fit_homography, line_crossings
+from .lens import fit_with_lens
 from .planar import canonical_line, line_eval, lit_polygon, segment_in_mask
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
@@ -62,6 +63,8 @@ class GeometryOptions:
     fold_band : camera px on each side of the fold whose crossings are left out; None: the
         ridge window (covers the largest blurred line).
     ransac_threshold : homography RANSAC inlier distance (camera px).
+    undistort : take the lens's radial distortion out (:func:`~.lens.fit_with_lens`) when it
+        moves the frame corners by more than a quarter pixel.
     """
 
     line_spacing: int = 48
@@ -71,6 +74,7 @@ class GeometryOptions:
     min_kink_deg: float = 1.0
     fold_band: float | None = None
     ransac_threshold: float = 1.5
+    undistort: bool = True
 
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
@@ -103,7 +107,8 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                        line_spacing: int = _D.line_spacing, line_phases: int = _D.line_phases,
                        line_width: int = _D.line_width, samples: int = _D.samples,
                        min_kink_deg: float = _D.min_kink_deg, fold_band: float | None = _D.fold_band,
-                       ransac_threshold: float = _D.ransac_threshold) -> Calibration:
+                       ransac_threshold: float = _D.ransac_threshold,
+                       undistort: bool = _D.undistort) -> Calibration:
     """Learn the set-up's geometry through ``capture`` only.
 
     Parameters
@@ -111,13 +116,14 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     procam : ProCam
     capture : the calibration's :class:`Capturer` (counts, retries, progress); a fresh one
         when None.
-    line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold
-        : see :class:`GeometryOptions` (their defaults are its defaults).
+    line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold,
+    undistort : see :class:`GeometryOptions` (their defaults are its defaults).
 
     Returns
     -------
     Calibration
-        Geometry section filled; ``meta["geometry"]`` holds the statistics (``n_planes``,
+        Geometry section filled, in ideal camera pixels with ``camera_distortion`` (k1, k2) the
+        lens; ``meta["geometry"]`` holds the statistics (``n_planes``,
         ``rms_px``, ``inliers``, ``fold_disagreement_px``, ``captures``, lines and kinks).
         The transient attribute ``geometry_detail`` (:class:`GeometryDetail`) feeds
         :func:`geometry_diagnostics`; it is not saved.
@@ -141,8 +147,23 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         frame = cap(pattern) if samples == 1 else cap.mean(pattern, int(samples))
         det.add(name, frame)
     detection = det.result()
-    lines = detection.lines
     camera_size = tuple(procam.camera_size)
+
+    def fit(detection: LineDetection, threshold: float = ransac_threshold) -> Calibration:
+        return _fit_geometry(detection, pats, seq, samples, det, camera_size, min_kink_deg,
+                             fold_band, threshold, t_start)
+
+    # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
+    return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
+                         rough=lambda d: fit(d, 4.0 * ransac_threshold))
+
+
+def _fit_geometry(detection: LineDetection, pats: LinePatterns, seq: list, samples: int,
+                  det: LineDetector, camera_size: tuple[int, int], min_kink_deg: float,
+                  fold_band: float | None, ransac_threshold: float, t_start: float) -> Calibration:
+    """Kinks -> fold -> homographies -> lit outline, on the camera coordinates of ``detection``
+    (steps 2-6 of the module docstring)."""
+    lines = detection.lines
     detail = GeometryDetail(detection=detection)
 
     # ---- kinks and the camera fold
@@ -225,7 +246,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                 "two flat walls, that the camera sees both, and that nothing moved.")
     detail.plane, detail.inliers = plane, inliers
     # The lens's radial distortion, from how far each plane's crossings are from a homography
-    # (reported; the homographies above stay in observed camera coordinates).
+    # (in the coordinates given: lens.fit_with_lens undistorts them and fits again if it matters).
     k1, rms_k1, rms_0 = estimate_radial_k1(
         [(proj[(plane == p) & inliers], cam[(plane == p) & inliers])
          for p in range(int(stats["n_planes"]))], camera_size)

@@ -46,6 +46,7 @@ from .camera_response import (
 from .capture import Capturer
 from .exposure import check_drift, check_exposure
 from .file import Calibration
+from .lens import lens_k, lit_mask_observed, observed_points
 from .planar import apply_h_per_plane
 
 log = logging.getLogger(__name__)
@@ -135,17 +136,22 @@ def cached_frame_count(capture: Capturer, key: str) -> int:
 
 
 def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Camera coordinates of every projector pixel, through its own plane's homography.
+    """Camera coordinates of every projector pixel, through its own plane's homography and
+    then the lens (ideal -> observed pixels, :func:`~.lens.observed_points`).
 
     Returns
     -------
     map_x, map_y : (Hp, Wp) float32
-        Camera (x, y) of projector pixel centre (x, y), ready for ``cv2.remap``.
+        Observed camera (x, y) of projector pixel centre (x, y), ready for ``cv2.remap`` on a
+        captured frame.
     """
     wp, hp = calib.projector_size
     ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float64)
     plane = calib.plane_map()
     map_x, map_y = apply_h_per_plane(calib.H_cam_from_proj, plane, xs, ys)
+    if lens_k(calib) is not None:
+        obs = observed_points(calib, np.stack([map_x, map_y], axis=-1))
+        map_x, map_y = obs[..., 0], obs[..., 1]
     return map_x.astype(np.float32), map_y.astype(np.float32)
 
 
@@ -264,17 +270,8 @@ def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sig
 
 
 def _lit_camera_mask(calib: Calibration) -> np.ndarray:
-    """(Hc, Wc) bool: camera pixels inside the lit outline (``lit_polygon_cam``), through the
-    lens distortion when there is one."""
-    from .planar import distort_points
-
-    wc, hc = calib.camera_size
-    poly = np.asarray(calib.lit_polygon_cam, np.float64)
-    if calib.camera_distortion is not None:
-        poly = distort_points(poly, calib.camera_distortion, calib.camera_size)
-    mask = np.zeros((hc, wc), np.uint8)
-    cv2.fillPoly(mask, [np.round(poly).astype(np.int32)], 1)
-    return mask.astype(bool)
+    """(Hc, Wc) bool: observed camera pixels inside the lit outline (through the lens)."""
+    return lit_mask_observed(calib)
 
 
 # --------------------------------------------------------------------------- the stage
@@ -334,6 +331,9 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     # One white frame now, the rest at the end of the stage: the two must agree (a camera whose
     # auto-exposure or white balance is not locked drifts in between).
     spaced = cached_frame_count(capture, "white") == 0 and white_frames >= 2
+    # The geometry stage's white frame (its first capture), when it took one: the same frame
+    # again now tells whether the exposure moved while the lines were projected.
+    geometry_white = capture.first_white
     white_first = mean_frame(capture, "white", white_pat, 1)
     in_view = _lit_camera_mask(calib)
     check_exposure(white_first, in_view, SATURATED, black_c)
@@ -360,6 +360,10 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         capture.begin("radiometry", black_frames + white_frames + n_ramp, done=radiometry_done)
     calib.camera_lut = cam_lut
     camera_gamma = cam_lut                              # what linearize_camera uses below
+    stage_drift = None
+    if geometry_white is not None:
+        stage_drift = check_drift(geometry_white.astype(np.float32), white_first, black_c,
+                                  in_view, cam_lut, stage="geometry")
     if ramp_layout == "patches" and ramp_c is None:
         ramp_c = capture(ramp_pat)
     white_c = mean_frame(capture, "white", white_pat, white_frames)
@@ -449,6 +453,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         "response_model": response_model,
         "camera_response": kind,
         "white_drift": None if drift_info is None else np.round(drift_info, 4).tolist(),
+        "white_drift_geometry": None if stage_drift is None else np.round(stage_drift, 4).tolist(),
         "camera_response_fit": response_info,
         "camera_lut_at": {str(c): np.round(cam_lut[:, c], 4).tolist() for c in (32, 64, 128, 192)},
         "levels": levels[ok].tolist(),

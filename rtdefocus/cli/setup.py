@@ -100,7 +100,9 @@ examples:
   rtdefocus calibrate --camera 0 --screen 1 -o setup.npz      a webcam and the second monitor
   rtdefocus calibrate --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock -o s.npz
 writes setup.npz and, next to it (or in --diagnostics DIR), setup_geometry.png: the camera view
-with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles.
+with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles;
+setup_camera.png: the camera's and the projector's response curves, the lens's distortion grid
+and the PSF dots that were skipped and why.
 """
 
 
@@ -199,6 +201,7 @@ def cmd_calibrate(args) -> int:
 
     from .. import procam as procam_mod
     from ..calib import STAGES, calibrate
+    from ..calib.camera_diagnostics import camera_diagnostics
     from ..calib.geometry_diagnostics import geometry_diagnostics
 
     stages = args.stages or STAGES
@@ -230,6 +233,7 @@ def cmd_calibrate(args) -> int:
     out = calib.save(args.output)
     diag_dir = Path(args.diagnostics) if args.diagnostics else out.parent
     picture = write_image(diag_dir / f"{out.stem}_geometry.png", geometry_diagnostics(calib))
+    camera_picture = write_image(diag_dir / f"{out.stem}_camera.png", camera_diagnostics(calib))
     g = calib.meta.get("geometry", {})
     rms = ", ".join(f"{v:.3f}" for v in g.get("rms_px", []))
     print(f"calibrated {source} in {seconds:.1f} s, {sum(calib.meta.get('captures', {}).values())} "
@@ -239,7 +243,7 @@ def cmd_calibrate(args) -> int:
     print(f"geometry: {calib.n_planes} plane(s), reprojection RMS {rms} camera px{fold}, "
           f"{g.get('lines_found')} of {g.get('lines_expected')} lines")
     print(f"wrote {out} (sections: {', '.join(calib.sections())})")
-    print(f"wrote {picture}")
+    print(f"wrote {picture} and {camera_picture}")
     return 0
 
 

@@ -97,5 +97,8 @@ def oracle_calibration(procam):
         psf_points_proj=points, psf_plane=planes, psfs=psfs, pix_idx=idx, pix_wts=wts,
         meta={"source": "oracle", "preset": getattr(procam, "preset", None)},
     )
+    # The truth's homographies, fold and outline are in ideal camera pixels: its lens goes with
+    # them, as a calibrated one would.
+    calib.camera_distortion = np.asarray(getattr(truth, "distortion", (0.0, 0.0)), np.float64)
     calib.validate()
     return calib

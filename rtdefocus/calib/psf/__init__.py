@@ -73,6 +73,7 @@ from ..file import Calibration
 from ..radiometry import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
+    _MIN_SNR,
     Measurement,
     _clean,
     _dot_geometry,
@@ -297,6 +298,7 @@ class PsfRun:
                             (self.blind if key[1] else self.model).kind.items()},
             "median_snr": round(float(np.median(meas.snr[sel])), 1),
             "skipped": [[int(x), int(y)] for x, y in plan.points[skipped]],
+            "skipped_why": [_skip_reason(float(v)) for v in meas.snr[sel][skipped]],
             "iso_average": {"tolerance": o.iso_tolerance, "distance": o.iso_distance,
                             "median_n_eff": round(float(np.median(n_eff)), 2)},
         }
@@ -307,6 +309,15 @@ class PsfRun:
 _BG_SMOOTH = 2.0
 # Fewest measured dots a plane (or the fold) needs: its kernel field is blended from them.
 _MIN_MEASURED = 3
+
+
+def _skip_reason(snr: float) -> str:
+    """Why a dot was skipped, from its measured signal-to-noise ratio (the diagnostics)."""
+    if not snr > 0:
+        return "no light above the background"
+    if snr < _MIN_SNR:
+        return f"too faint (SNR {snr:.1f} < {_MIN_SNR:g})"
+    return "no kernel shape left after cleaning"
 
 
 def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.ndarray:
@@ -353,7 +364,7 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
 def camera_sides(calib: Calibration) -> list[np.ndarray]:
     """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
     undistorted camera coordinates); one all-true mask for a single plane."""
-    from ..planar import undistort_points
+    from ..lens import ideal_points
 
     wc, hc = calib.camera_size
     fold = getattr(calib, "fold_cam", None)
@@ -361,8 +372,7 @@ def camera_sides(calib: Calibration) -> list[np.ndarray]:
         return [np.ones((hc, wc), bool)]
     yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
     xy = np.stack([xx, yy], axis=-1)
-    if getattr(calib, "camera_distortion", None) is not None:
-        xy = undistort_points(xy, calib.camera_distortion, calib.camera_size)
+    xy = ideal_points(calib, xy)
     neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
     return [neg, ~neg]
 

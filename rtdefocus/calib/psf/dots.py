@@ -13,6 +13,7 @@ import numpy as np
 from ...errors import CalibrationError, InputError
 from ..capture import Capturer
 from ..file import Calibration
+from ..lens import ideal_points, lens_k, observed_points
 from ..planar import apply_h_per_plane
 from ..radiometry import linearize_camera
 from .pilot import support_bound
@@ -55,10 +56,14 @@ def pack_patterns(points: np.ndarray, support: np.ndarray, window: np.ndarray) -
 
 
 def camera_to_projector_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Projector (x, y) of every camera pixel through the homography of the wall it sees
-    (the side of ``fold_cam``). Returns two (Hc, Wc) float64 arrays."""
+    """Projector (x, y) of every (observed) camera pixel: undistorted by the lens, then
+    through the homography of the wall it sees (the side of ``fold_cam``). Returns two
+    (Hc, Wc) float64 arrays."""
     wc, hc = calib.camera_size
     ys, xs = np.mgrid[0:hc, 0:wc].astype(np.float64)
+    if lens_k(calib) is not None:
+        ideal = ideal_points(calib, np.stack([xs, ys], axis=-1))
+        xs, ys = ideal[..., 0], ideal[..., 1]
     if calib.n_planes == 2:
         a, b, c = calib.fold_cam
         plane = (a * xs + b * ys + c >= 0).astype(int)
@@ -75,7 +80,9 @@ def _camera_bbox(calib: Calibration, x: int, y: int, h: int) -> tuple[slice, sli
     for H in calib.H_cam_from_proj:  # both walls: a window near the fold may span the two
         q = corners @ H.T
         cam.append(q[:, :2] / q[:, 2:3])
-    cam = np.vstack(cam)
+    # The window is small: its corners, seen through the lens, bound it (the margins below
+    # cover the slight bend of its edges).
+    cam = observed_points(calib, np.vstack(cam))
     x0, y0 = np.floor(cam.min(0)).astype(int) - 1
     x1, y1 = np.ceil(cam.max(0)).astype(int) + 2
     x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, wc), min(y1, hc)

@@ -1,0 +1,264 @@
+"""The camera's lens: radial distortion, estimated by the geometry stage and undone everywhere
+a camera picture or a camera point meets the calibration.
+
+The model (:func:`~.planar.distort_points`) is radial about the image centre with r = 1 at the
+frame corners: ``x_obs = c + (x - c)(1 + k1 r² + k2 r⁴)``. The calibration's homographies, fold,
+lit outline and display rectangle are in *ideal* (undistorted) camera pixels; a captured frame
+is in *observed* pixels. So:
+
+* camera points measured on a frame are undistorted before any fit (:func:`undistort_detection`,
+  :func:`ideal_points`);
+* a map from projector pixels into a frame goes ideal -> observed (:func:`observed_points`);
+* a frame compared with the display rectangle is resampled into ideal pixels first
+  (:func:`undistort_image`, :func:`ideal_view`).
+
+:func:`fit_with_lens` is the geometry stage's lens step: fit with k = 0, estimate k1 from how far
+each plane's crossings are from a homography (:func:`~.homography.estimate_radial_k1`), and when
+that matters undistort the detection and fit again.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Callable
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from .planar import distort_points, undistort_points
+from .structured_light import DetectedLine, LineDetection
+
+log = logging.getLogger(__name__)
+
+__all__ = ["lens_k", "ideal_points", "observed_points", "observed_maps", "undistort_image",
+           "ideal_view", "lit_mask_observed", "undistort_line", "undistort_detection",
+           "fit_with_lens", "MIN_EFFECT_PX", "MIN_EXPLAINED"]
+
+#: Largest displacement (camera px, at the frame corners) of a distortion that is not worth
+#: correcting: below it the estimate is within its own noise and a refit only costs time.
+MIN_EFFECT_PX = 0.25
+#: Share of the crossings' RMS misfit (k1 = 0) the fitted k1 must remove to be applied.
+MIN_EXPLAINED = 0.1
+
+
+def lens_k(calib_or_k) -> tuple[float, float] | None:
+    """(k1, k2) of a Calibration (its ``camera_distortion``) or of a pair; None for an ideal
+    lens (absent or all zero)."""
+    k = getattr(calib_or_k, "camera_distortion", calib_or_k)
+    if k is None:
+        return None
+    k1, k2 = (float(v) for v in np.asarray(k, np.float64).ravel()[:2])
+    return None if k1 == 0.0 and k2 == 0.0 else (k1, k2)
+
+
+def ideal_points(calib, pts_xy: np.ndarray) -> np.ndarray:
+    """Observed camera points (..., 2) -> ideal camera points (float64), through ``calib``'s
+    lens (unchanged for an ideal one)."""
+    k = lens_k(calib)
+    p = np.asarray(pts_xy, np.float64)
+    return p.copy() if k is None else undistort_points(p, k, tuple(calib.camera_size))
+
+
+def observed_points(calib, pts_xy: np.ndarray) -> np.ndarray:
+    """Ideal camera points (..., 2) -> where the camera sees them (float64)."""
+    k = lens_k(calib)
+    p = np.asarray(pts_xy, np.float64)
+    return p.copy() if k is None else distort_points(p, k, tuple(calib.camera_size))
+
+
+@functools.lru_cache(maxsize=8)
+def _maps(k: tuple[float, float], camera_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    wc, hc = camera_size
+    ys, xs = np.mgrid[0:hc, 0:wc].astype(np.float64)
+    obs = distort_points(np.stack([xs, ys], axis=-1), k, camera_size)
+    mx = np.ascontiguousarray(obs[..., 0], np.float32)
+    my = np.ascontiguousarray(obs[..., 1], np.float32)
+    mx.flags.writeable = my.flags.writeable = False      # shared by every caller
+    return mx, my
+
+
+def observed_maps(k, camera_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(Hc, Wc) float32 maps for ``cv2.remap``: the observed position of every ideal camera
+    pixel (cached per lens and size; read-only)."""
+    kk = lens_k(k) or (0.0, 0.0)
+    return _maps(kk, (int(camera_size[0]), int(camera_size[1])))
+
+
+def undistort_image(img: np.ndarray, k, camera_size: tuple[int, int] | None = None,
+                    interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """A camera frame (Hc, Wc[, C]) resampled into ideal (undistorted) camera pixels.
+
+    ``k``: (k1, k2) or a Calibration. Pixels whose observed position falls outside the frame
+    are 0. Bilinear by default (``cv2.INTER_NEAREST`` for masks and labels). An ideal lens
+    returns ``img`` itself.
+    """
+    kk = lens_k(k)
+    if kk is None:
+        return img
+    size = camera_size if camera_size is not None else tuple(k.camera_size)
+    mx, my = observed_maps(kk, size)
+    a = np.asarray(img)
+    src = a.astype(np.uint8) if a.dtype == bool else a
+    out = cv2.remap(np.ascontiguousarray(src), mx, my, interpolation,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.astype(bool) if a.dtype == bool else out
+
+
+def ideal_view(calib, frame: np.ndarray) -> np.ndarray:
+    """A captured frame in the calibration's (ideal) camera pixels, ready to be cropped by
+    ``calib.display_rect`` or compared with ``fold_cam`` (the frame itself for an ideal lens)."""
+    return undistort_image(frame, calib)
+
+
+def lit_mask_observed(calib, step: float = 4.0) -> np.ndarray:
+    """(Hc, Wc) bool: the observed camera pixels inside the lit outline (``lit_polygon_cam``);
+    its edges, straight in ideal pixels, are sampled every ``step`` px before distortion so
+    they bend as the lens bends them."""
+    wc, hc = calib.camera_size
+    poly = np.asarray(calib.lit_polygon_cam, np.float64)
+    if lens_k(calib) is not None:
+        dense = []
+        for p, q in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+            n = max(1, int(np.ceil(np.linalg.norm(q - p) / step)))
+            dense.append(p + np.linspace(0.0, 1.0, n, endpoint=False)[:, None] * (q - p))
+        poly = observed_points(calib, np.vstack(dense))
+    mask = np.zeros((hc, wc), np.uint8)
+    cv2.fillPoly(mask, [np.round(poly * 16).astype(np.int32)], 1, shift=4)
+    return mask.astype(bool)
+
+
+# --------------------------------------------------------------------------- the detection
+def undistort_line(ln: DetectedLine, k: tuple[float, float],
+                   camera_size: tuple[int, int]) -> DetectedLine:
+    """A detected ridge in ideal camera pixels, resampled at whole rows ("v") or columns ("h")
+    (the form :func:`~.homography.line_crossings` and :func:`~.fold.find_kink` read).
+
+    Samples between two ideal positions are linearly interpolated only where the two observed
+    samples were neighbours (t and t + 1): gaps stay gaps.
+    """
+    if len(ln.t) < 2:
+        return replace(ln, t=ln.t[:0], s=ln.s[:0])
+    ideal = undistort_points(ln.pts_cam_xy, k, camera_size)
+    along, across = (ideal[:, 1], ideal[:, 0]) if ln.axis == "v" else (ideal[:, 0], ideal[:, 1])
+    order = np.argsort(along, kind="stable")
+    along, across, t_obs = along[order], across[order], ln.t[order]
+    t_new = np.arange(int(np.ceil(along[0])), int(np.floor(along[-1])) + 1)
+    j = np.clip(np.searchsorted(along, t_new, side="right"), 1, len(along) - 1)
+    joined = (t_obs[j] - t_obs[j - 1]) == 1
+    f = (t_new - along[j - 1]) / np.maximum(along[j] - along[j - 1], 1e-9)
+    s_new = across[j - 1] + f * (across[j] - across[j - 1])
+    keep = joined & (f >= 0) & (f <= 1)
+    return replace(ln, t=t_new[keep].astype(ln.t.dtype), s=s_new[keep].astype(np.float64))
+
+
+def undistort_detection(det: LineDetection, k: tuple[float, float],
+                        camera_size: tuple[int, int]) -> LineDetection:
+    """The whole line detection in ideal camera pixels: every ridge (:func:`undistort_line`),
+    the frames and the valid mask resampled (so the diagnostics draw on a matching picture)."""
+    lines = [undistort_line(ln, k, camera_size) for ln in det.lines]
+    return replace(
+        det, lines=[ln for ln in lines if len(ln.t) > 0],
+        white=undistort_image(det.white, k, camera_size),
+        black=undistort_image(det.black, k, camera_size),
+        valid=undistort_image(det.valid, k, camera_size, cv2.INTER_NEAREST),
+        white_rgb=undistort_image(det.white_rgb, k, camera_size),
+        stats=dict(det.stats))
+
+
+# --------------------------------------------------------------------------- the geometry step
+class _HoldWarnings(logging.Filter):
+    """Holds back the warnings a logger emits (the first, distorted fit's "only 80 % of the
+    crossings fit" is a symptom the lens correction then cures)."""
+
+    def __init__(self, name: str):
+        super().__init__()
+        self.logger = logging.getLogger(name)
+        self.held: list[logging.LogRecord] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.WARNING:
+            self.held.append(record)
+            return False
+        return True
+
+    def __enter__(self):
+        self.logger.addFilter(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.logger.removeFilter(self)
+
+    def release(self) -> None:
+        for record in self.held:
+            self.logger.handle(record)
+
+
+def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetection,
+                  camera_size: tuple[int, int], *, correct: bool = True,
+                  rough: Callable[[LineDetection], object] | None = None,
+                  min_effect_px: float = MIN_EFFECT_PX, logger: str = __package__ + ".geometry"):
+    """Run the geometry fit with the lens's radial distortion taken out.
+
+    ``fit(detection) -> Calibration`` is the geometry stage's fit (kinks, fold, homographies);
+    it reports, in ``meta["geometry"]["distortion"]``, the k1 that best straightens its planes'
+    crossings (:func:`~.homography.estimate_radial_k1`). When that k1 moves the frame corners by
+    more than ``min_effect_px`` and removes at least :data:`MIN_EXPLAINED` of the crossings'
+    RMS misfit (and ``correct``), the detection is undistorted with it
+    (:func:`undistort_detection`) and fitted again; ``calib.camera_distortion`` is set to
+    (k1, 0) and the homographies, fold, outline (and so the display rectangle) are in ideal
+    camera pixels. ``meta["geometry"]["distortion"]`` then holds ``k1``, ``k2``, ``applied``,
+    the corner displacement ``corner_px``, the RMS without / with the model and the residual
+    k1 the second fit still sees.
+
+    A lens strong enough that the first fit fails (too few crossings fit one homography) is
+    estimated from ``rough(detection)`` (the same fit with a looser inlier distance) instead;
+    the first fit's error is raised when that does not explain it. Warnings of the first fit
+    (logger ``logger``) are held back, and repeated only when no correction follows.
+    """
+    from ..errors import CalibrationError
+    from .planar import distortion_scale
+
+    first_error = None
+    try:
+        with _HoldWarnings(logger) as held:
+            calib = fit(detection)
+    except CalibrationError as exc:
+        if not (correct and rough is not None):
+            held.release()
+            raise
+        first_error = exc
+        try:
+            with _HoldWarnings(logger):
+                calib = rough(detection)
+        except CalibrationError:
+            held.release()
+            raise exc from None
+    d0 = dict(calib.meta["geometry"].get("distortion", {}))
+    k1 = float(d0.get("k1", 0.0))
+    corner_px = abs(k1) * distortion_scale(camera_size)[2]
+    info = {"k1": round(k1, 5), "k2": 0.0, "corner_px": round(corner_px, 3),
+            "rms_px_without": d0.get("rms_px_without"), "rms_px": d0.get("rms_px"),
+            "applied": False}
+    rms0, rms1 = d0.get("rms_px_without"), d0.get("rms_px")
+    # Worth it when the lens moves the corners visibly *and* explains part of the crossings'
+    # misfit: on an ideal lens k1 is the estimate's noise and leaves the misfit as it was.
+    explains = rms0 is not None and rms1 is not None and rms1 < (1.0 - MIN_EXPLAINED) * rms0
+    if correct and corner_px > min_effect_px and explains:
+        k = (k1, 0.0)
+        ideal = undistort_detection(detection, k, camera_size)
+        calib = fit(ideal)
+        residual = calib.meta["geometry"].get("distortion", {})
+        info.update(applied=True, residual_k1=residual.get("k1"),
+                    rms_px=residual.get("rms_px_without"), first_fit_failed=first_error is not None)
+        calib.camera_distortion = np.array(k, np.float64)
+        log.info("geometry: lens k1 = %.4f (%.2f px at the corners) taken out; RMS %s -> %s px",
+                 k1, corner_px, info["rms_px_without"], info["rms_px"])
+    else:
+        held.release()
+        if first_error is not None:
+            raise first_error
+        calib.camera_distortion = np.zeros(2, np.float64)
+    calib.meta["geometry"]["distortion"] = info
+    return calib
