@@ -270,15 +270,18 @@ def test_brightness_trades_clipping(fabric):
                               method="none")
         comp.compensate(white)
         shares.append(comp.last_info["clipped"])
-    assert shares[0] == 0.0 and shares[1] <= 0.06 and shares[2] > 0.5, shares
+    from rtdefocus.compensate.surface import AUTO_CLIP_SHARE
+
+    assert shares[0] == 0.0 and shares[1] <= AUTO_CLIP_SHARE + 0.01 and shares[2] > 0.5, shares
 
 
 def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     """Done-when: the defocus gain near the fold with flatten ≥ 60 % of the true-kernel one
-    (keep, oracle calibration). With the preconditioned solve, FISTA 40 iterations, 240×180,
-    `python tools/flatten_eval.py --backend opencl` measured flatten/keep = 0.93 (chelsea),
-    0.59 (coffee), 0.77 (astronaut); 0.40–0.61 over the three before it. Asserted: ≥ 70 % of
-    astronaut's 0.77."""
+    (keep, oracle calibration), on coffee, the photograph that fell short (0.59) before the
+    target was clamped to the projector's range, black given the room light's level and the
+    auto brightness allowed 10 % clipping of a white frame. `python tools/flatten_eval.py
+    --backend opencl --calib oracle`, FISTA 40 iterations, 240×180: flatten/keep = 1.13
+    (chelsea), 0.73 (coffee), 0.72 (astronaut)."""
     import sys
     from pathlib import Path
 
@@ -288,7 +291,24 @@ def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     from rtdefocus.samples import photographs
 
     cam, calib = fabric
-    res = evaluate(cam, calib, {"astronaut": photographs()["astronaut"]}, backend="numpy")
+    res = evaluate(cam, calib, {"coffee": photographs()["coffee"]}, backend="numpy")
     gain = res["fold_gain"]
-    assert gain["astronaut/keep"] > 1.0, gain
-    assert gain["astronaut/flatten"] >= 0.70 * 0.77 * gain["astronaut/keep"], gain
+    assert gain["coffee/keep"] > 1.0, gain
+    assert gain["coffee/flatten"] >= 0.60 * gain["coffee/keep"], gain
+
+
+def test_flatten_target_is_reachable_and_clipping_reported(fabric):
+    """The solve's target is clamped to [0, 1]; what the clamp gives up is reported, and a black
+    input is reachable on nearly all of the wall (the black level e is the room light's)."""
+    from rtdefocus.compensate.surface import AUTO_DARK_SHARE, SurfaceModel
+
+    _, calib = fabric
+    model = SurfaceModel.from_calibration(calib, 0.6)
+    wp, hp = calib.projector_size
+    white, black = np.ones((3, hp, wp), np.float32), np.zeros((3, hp, wp), np.float32)
+    T = model.target(white)
+    assert T.min() >= 0.0 and T.max() <= 1.0
+    above, _ = model.clipped(white)
+    assert above > 0.5                       # b = 0.6 is beyond most of this wall
+    _, below = model.clipped(black + 1e-3)
+    assert below <= AUTO_DARK_SHARE + 0.01

@@ -1,14 +1,17 @@
 """Figures of ``surface="flatten"`` against ``"keep"`` on the simulator (issue 12).
 
     python tools/flatten_eval.py [--size 240x180] [--backend numpy] [--preset fabric]
+                                 [--calib oracle|calibrated|both]
 
-Prints, with the oracle calibration (true albedo, ambient, kernels):
+Prints, with the oracle calibration (true albedo, ambient, kernels) and/or one made by
+``rd.calibrate`` through the simulator's captures (``calibrated``, the end-to-end figure):
 * the spatial coefficient of variation of a flat grey field in the camera view (display
   rectangle, 5 % inset), keep vs flatten;
 * per photograph, PSNR after one global gain and offset of the camera view against the input
   on a uniform white wall (the input resized into the display rectangle), keep vs flatten;
 * the defocus gain in the fold band (PSNR of geometry + defocus minus geometry only, each
-  against its own sharp display), flatten vs keep.
+  against its own sharp display), flatten vs keep; with ``calibrated`` also against the
+  true-kernel oracle's keep (the done-when of issue 12 asks ≥ 60 % of it).
 """
 
 from __future__ import annotations
@@ -74,27 +77,59 @@ def evaluate(procam, calib, images: dict, backend="numpy", iterations=None) -> d
     return res
 
 
+def calibrations(procam, which: str) -> dict:
+    """``{"oracle": ..., "calibrated": ...}`` as ``which`` asks ("oracle", "calibrated", "both")."""
+    out = {}
+    if which in ("oracle", "both"):
+        out["oracle"] = rd.sim.oracle_calibration(procam)
+    if which in ("calibrated", "both"):
+        out["calibrated"] = rd.calibrate(procam)
+    return out
+
+
+def fold_ratios(res: dict, names, oracle: dict | None = None) -> dict:
+    """Per photograph, the fold gain of flatten over keep's of the same calibration and, given
+    the oracle's results, over the true-kernel oracle's keep."""
+    f = res["fold_gain"]
+    out = {}
+    for n in names:
+        out[n] = {"same": f[n + "/flatten"] / f[n + "/keep"]}
+        if oracle is not None:
+            out[n]["oracle"] = f[n + "/flatten"] / oracle["fold_gain"][n + "/keep"]
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="240x180")
     ap.add_argument("--preset", default="fabric")
     ap.add_argument("--backend", default="numpy")
     ap.add_argument("--images", default="chelsea,coffee,astronaut")
+    ap.add_argument("--calib", default="both", choices=("oracle", "calibrated", "both"))
+    ap.add_argument("--json", action="store_true", help="also print every figure as JSON")
     args = ap.parse_args()
     wp, hp = (int(v) for v in args.size.split("x"))
     procam = rd.sim.VirtualProCam(args.preset, projector_size=(wp, hp),
                                   camera_size=(wp * 4 // 3, hp * 4 // 3))
-    calib = rd.sim.oracle_calibration(procam)
     photos = photographs()
     images = {n: photos[n] for n in args.images.split(",")}
-    res = evaluate(procam, calib, images, backend=args.backend)
-    print(json.dumps(res, indent=1))
-    k = res["psnr_affine"]
-    print("cov keep/flatten = %.2f" % (res["cov"]["keep"] / res["cov"]["flatten"]))
-    for n in images:
-        f = res["fold_gain"]
-        print(f"{n}: psnr_affine flatten - keep = {k[n + '/flatten'] - k[n + '/keep']:+.2f} dB; "
-              f"fold gain flatten/keep = {f[n + '/flatten'] / f[n + '/keep']:.2f}")
+    results = {}
+    for kind, calib in calibrations(procam, args.calib).items():
+        results[kind] = evaluate(procam, calib, images, backend=args.backend)
+    if args.json:
+        print(json.dumps(results, indent=1))
+    for kind, res in results.items():
+        k, c = res["psnr_affine"], res["clipped"]
+        ratios = fold_ratios(res, images, results.get("oracle") if kind != "oracle" else None)
+        print(f"[{kind}] CoV keep {res['cov']['keep']:.4f} flatten {res['cov']['flatten']:.4f}: "
+              f"{res['cov']['keep'] / res['cov']['flatten']:.2f}x lower (>= 4)")
+        for n in images:
+            r = ratios[n]
+            vs = f"; vs oracle keep {r['oracle']:.2f}" if "oracle" in r else ""
+            print(f"  {n:10s} psnr_affine flatten - keep {k[n + '/flatten'] - k[n + '/keep']:+.2f} dB "
+                  f"(>= 3); fold gain keep {res['fold_gain'][n + '/keep']:.2f} dB, flatten "
+                  f"{res['fold_gain'][n + '/flatten']:.2f} dB, flatten/keep {r['same']:.2f}{vs} "
+                  f"(>= 0.60); clipped {100 * c[n + '/flatten']:.1f} %")
 
 
 if __name__ == "__main__":

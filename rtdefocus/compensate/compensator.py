@@ -91,8 +91,9 @@ class Compensator:
         uniform white wall, through the calibration's albedo and ambient, in the same solve
         (:mod:`.surface`; needs the radiometry section).
     brightness : "auto" | float
-        ``surface="flatten"`` only: the global brightness b of a white input (camera linear
-        light); "auto" keeps clipping on a white input to a small share of the wall.
+        ``surface="flatten"`` only: the global brightness b, how much brighter than black a
+        white input shows (camera linear light; black shows at the room light's level); "auto"
+        keeps clipping on a white input to a small share of the wall.
     psf_energy : float, optional
         Cut each kernel to the smallest window holding this share of its energy (e.g. 0.999)
         before solving: fewer taps per blur, a slightly different operator. Default: the
@@ -275,7 +276,7 @@ class Compensator:
         return np.clip(target, 0.0, 1.0).astype(np.float32)
 
     def _surface_info(self, info: dict, I: np.ndarray, target: np.ndarray) -> None:
-        above, below = self._surface.clipped(I, target)
+        above, below = self._surface.clipped(I)
         info.update(surface="flatten", brightness=self._surface.brightness, clipped=above,
                     clipped_dark=below)
 
@@ -354,7 +355,7 @@ class Compensator:
             # solver's ops carry the scale); the motion and warm start work on T' alike.
             inp, target = target, self._surface.target(target)
             ops.upload(target, s.target)
-            above, below = self._surface.clipped(inp, target)
+            above, below = self._surface.clipped(inp)
             self._last_flat = {"surface": "flatten", "brightness": self._surface.brightness,
                                "clipped": above, "clipped_dark": below}
         prev_target = self._prev_target
