@@ -110,8 +110,9 @@ def test_save_load_roundtrip(tmp_path):
     cal = calibrated("cubicle").variants[PAPER]     # includes the shared fold samples (-1)
     path = cal.save(tmp_path / "paper.npz")
     back = Calibration.load(path)
-    # "camera": the camera's recovered response (calib.camera_lut, file format 2)
-    assert back.sections() == ["geometry", "radiometry", "psf", "camera"]
+    # "lens": the camera's radial distortion (zeros here), "camera": its recovered response
+    # (calib.camera_distortion, calib.camera_lut, file format 2)
+    assert back.sections() == ["geometry", "radiometry", "psf", "lens", "camera"]
     for x, y in [(0, 0), (399, 300), (401, 12), (799, 599)]:
         np.testing.assert_array_equal(back.kernel_at(x, y), cal.kernel_at(x, y))
 
