@@ -17,7 +17,7 @@ import numpy as np
 
 from .planar import apply_h, line_eval, normalise_line, tls_line
 
-__all__ = ["Kink", "find_kink", "fit_fold", "fold_to_projector"]
+__all__ = ["Kink", "find_kink", "find_kinks", "fit_fold", "fold_to_projector"]
 
 
 # --------------------------------------------------------------------------- kinks
@@ -137,6 +137,46 @@ def find_kink(t: np.ndarray, s: np.ndarray, *, min_angle_deg: float = 1.0, min_s
     tk = t0 + tau * th
     sk_val = b[0] + b[1] * tau + b[2] * tau * tau
     return Kink(point_cam_xy=np.array([tk, sk_val]), angle_deg=angle, score=float(score))
+
+
+def find_kinks(t: np.ndarray, s: np.ndarray, *, min_angle_deg: float = 1.0, gap: float = 24.0,
+               max_kinks: int = 4) -> list[Kink]:
+    """Every sharp bend on a line that crosses several folds, in order along ``t``.
+
+    The strongest bend is found on the whole line (:func:`find_kink`), then each side of it
+    (``gap`` camera px away, clear of the blurred transition) is searched again. Each bend is
+    finally re-located on the stretch between its neighbours, so another bend never pulls it.
+    A line with one bend gets exactly what :func:`find_kink` gives.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    found: list[Kink] = []
+
+    def search(lo: float, hi: float) -> None:
+        if len(found) >= max_kinks:
+            return
+        sel = (t >= lo) & (t <= hi)
+        kk = find_kink(t[sel], s[sel], min_angle_deg=min_angle_deg)
+        if kk is None:
+            return
+        found.append(kk)
+        tk = float(kk.point_cam_xy[0])
+        search(lo, tk - gap)
+        search(tk + gap, hi)
+
+    search(-np.inf, np.inf)
+    if len(found) < 2:
+        return found
+    pos = sorted(float(kk.point_cam_xy[0]) for kk in found)
+    out = []
+    for i in range(len(pos)):
+        lo = pos[i - 1] + gap if i > 0 else -np.inf
+        hi = pos[i + 1] - gap if i + 1 < len(pos) else np.inf
+        sel = (t >= lo) & (t <= hi)
+        kk = find_kink(t[sel], s[sel], min_angle_deg=min_angle_deg)
+        if kk is not None:
+            out.append(kk)
+    return out
 
 
 # --------------------------------------------------------------------------- fold
