@@ -123,7 +123,7 @@ def _add_calibrate(sub):
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--sim", metavar="PRESET", help="the built-in virtual set-up: cubicle, pillar, "
-                     "flat, tilted or offcenter")
+                     "flat, tilted, offcenter, u_cubicle or corner_ceiling")
     src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
                      "go full-screen to --screen")
     p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
@@ -139,7 +139,21 @@ def _add_calibrate(sub):
                    help="simulator camera noise, fraction of full scale (default: the simulator's)")
     p.add_argument("--diagnostics", metavar="DIR",
                    help="folder for the diagnostics pictures (default: next to the output)")
+    p.add_argument("--planes", type=_planes, default="auto", metavar="auto|N",
+                   help="number of flat surfaces (walls, ceiling) the projection covers; auto "
+                   "(default) finds it from the lines' kinks")
     p.set_defaults(func=cmd_calibrate)
+
+
+def _planes(text: str):
+    from ..calib.geometry_fit import check_planes_option
+    from ..errors import InputError
+
+    try:
+        n = check_planes_option(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return "auto" if n is None else n
 
 
 def _fourcc(text: str) -> str:
@@ -223,7 +237,7 @@ def cmd_calibrate(args) -> int:
     t0 = time.perf_counter()
     try:
         with _Progress(args.quiet) as progress:
-            calib = calibrate(procam, stages=stages, progress=progress)
+            calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes)
         if hasattr(procam, "drift"):
             _report_hardware(procam, after=True)
     finally:
