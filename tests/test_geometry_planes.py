@@ -214,6 +214,12 @@ def test_cli_calibrate_takes_planes(tmp_path, monkeypatch, capsys):
     calib = rd.Calibration.load(out)
     assert calib.n_planes == 2 and calib.meta["geometry"]["options"]["planes"] == 2
     assert calib.meta["captures"]["geometry"] == LinePatterns(SIZE["projector_size"]).count()
+    # a room: three planes found by default, file and picture written
+    room = tmp_path / "room.npz"
+    assert cli.main(["-q", "calibrate", "--sim", "u_cubicle", "-o", str(room), "--stages",
+                     "geometry"]) == 0
+    assert "3 plane(s)" in capsys.readouterr().out
+    assert rd.Calibration.load(room).n_planes == 3 and (tmp_path / "room_geometry.png").exists()
     with pytest.raises(SystemExit) as info:
         cli.main(["calibrate", "--sim", "pillar", "-o", str(out), "--planes", "many"])
     assert info.value.code == 2

@@ -42,14 +42,14 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
         background = detail.detection.white_rgb if detail is not None else np.zeros((hc, wc, 3), np.uint8)
     img = 0.55 * np.asarray(background, dtype=np.float32)
     # Planes, tinted: each plane's share of the projector frame mapped into the camera.
-    for k, pp in enumerate(plane_polygons_proj(calib.projector_size, calib.fold_proj, calib.n_planes)):
+    for k, pp in enumerate(plane_polygons_proj(calib.projector_size, calib.layout, calib.n_planes)):
         if len(pp) < 3:
             continue
         pc = apply_h(calib.H_cam_from_proj[k], pp)
         mask = np.zeros((hc, wc), np.uint8)
         cv2.fillPoly(mask, [np.round(pc * 16).astype(np.int32)], 1, cv2.LINE_AA, shift=4)
         m = mask.astype(bool)
-        img[m] = 0.7 * img[m] + 0.3 * _PLANE_TINT[k]
+        img[m] = 0.7 * img[m] + 0.3 * _PLANE_TINT[k % len(_PLANE_TINT)]
     img = np.clip(img, 0, 255).astype(np.uint8)
     sh = 4
 

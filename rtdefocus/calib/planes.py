@@ -261,24 +261,22 @@ def select_planes(candidates, grid: CrossingGrid, pts_proj_xy, pts_cam_xy, kinks
     kept = [0]
     evidence = [PlaneEvidence(int(candidates[0][1].sum()), float(candidates[0][1].mean()), 1.0,
                               accepted=True, reason="largest consensus")]
-    for k in range(1, len(candidates)):
+    evidence += [None] * (len(candidates) - 1)
+
+    def evaluate(k: int) -> PlaneEvidence:
         trial = kept + [k]
         raw = label_crossings([Hs[i] for i in trial], pts_proj_xy, pts_cam_xy, threshold)
         labels, share_kept = clean_labels(grid, raw, len(trial))
         me = len(trial) - 1
         ev = PlaneEvidence(int((labels == me).sum()), float(np.mean(labels == me)),
                            float(share_kept[me]))
-        evidence.append(ev)
-        if want is not None and len(kept) >= want:
-            ev.reason = f"{want} planes asked for"
-            continue
         if ev.share < min_share:
             ev.reason = f"holds {100 * ev.share:.1f} % of the crossings (< {100 * min_share:g} %)"
-            continue
+            return ev
         if ev.kept < 0.7:
             ev.reason = (f"not one region: only {100 * ev.kept:.0f} % of its crossings survive the "
                          "spatial cleaning")
-            continue
+            return ev
         best = (0, 0.0, 0)
         for other in range(me):
             n_cross, matched = boundary_kinks(grid, labels, pts_cam_xy, kinks, other, me)
@@ -288,9 +286,29 @@ def select_planes(candidates, grid: CrossingGrid, pts_proj_xy, pts_cam_xy, kinks
         if ev.kinks < min_kinks or ev.kink_share < 0.3:
             ev.reason = (f"no fold: {ev.kinks} kinks where the lines cross into it "
                          f"({100 * ev.kink_share:.0f} % of the crossings)")
-            continue
+            return ev
         ev.accepted, ev.reason = True, "contiguous, kinks along its fold"
         ev.neighbours = [trial[best[2]]]
-        kept.append(k)
+        return ev
+
+    # In order of consensus; passes repeat while one adds a plane, since a plane meets the
+    # kept ones only once the plane between them is kept.
+    pending = list(range(1, len(candidates)))
+    grew = True
+    while grew and pending:
+        grew = False
+        for k in list(pending):
+            if want is not None and len(kept) >= want:
+                break
+            evidence[k] = evaluate(k)
+            if evidence[k].accepted:
+                kept.append(k)
+                pending.remove(k)
+                grew = True
+    for k in pending:
+        if evidence[k] is None:
+            evidence[k] = PlaneEvidence(int(candidates[k][1].sum()),
+                                        float(candidates[k][1].mean()), 0.0,
+                                        reason=f"{want} planes asked for")
     log.debug("plane candidates: %s", [e.as_dict() for e in evidence])
     return kept, evidence
