@@ -85,8 +85,8 @@ from .dots import (
     pack_patterns,
 )
 from .kernel_field import interpolation_field
-from .layout import LAYOUTS, SamplePlan, fold_segment, plan_samples
-from .pilot import FOLD, RadiusModel, pilot_radius
+from .layout import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
+from .pilot import FOLD, RadiusModel, fold_code, pilot_radius
 
 log = logging.getLogger(__name__)
 
@@ -225,14 +225,14 @@ class PsfRun:
         # Every dot is measured the same way whatever layout asked for it: its window and dot
         # size follow the per-plane pilot model (a dot on the fold: the larger of the two sides).
         uplane_a = np.array(uplane)
-        if calib.n_planes == 2:
-            on_plane = uplane_a != FOLD
+        if calib.n_planes > 1:
+            on_plane = uplane_a >= 0               # not on a fold (fold_code < 0)
             uplane_a[on_plane] = calib.plane_of(upts_a[on_plane, 0], upts_a[on_plane, 1])
         urad_a = np.empty(len(upts_a))
         for p in np.unique(uplane_a):
             sel = uplane_a == p
             urad_a[sel] = model(upts_a[sel].astype(np.float64),
-                                int(p) if calib.n_planes == 2 else 0)
+                                int(p) if calib.n_planes > 1 else 0)
         used = capture.counts.get("psf", 0) - self.first_count
         averages = o.averages
         if averages is None:
@@ -344,7 +344,8 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
         mine = plan.planes == reg
         good = np.flatnonzero(mine & ~skipped)
         if len(good) < _MIN_MEASURED:
-            where = "on the fold" if reg == FOLD else f"on plane {int(reg)}"
+            where = ("on the fold" if reg == FOLD else f"on fold {fold_code(reg)}") if reg < 0 \
+                else f"on plane {int(reg)}"
             raise CalibrationError(
                 f"only {len(good)} of {int(mine.sum())} PSF dots {where} could be measured (need "
                 f"{_MIN_MEASURED}); the rest are too faint against the camera noise and the room's "
@@ -362,19 +363,18 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
 
 
 def camera_sides(calib: Calibration) -> list[np.ndarray]:
-    """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
-    undistorted camera coordinates); one all-true mask for a single plane."""
+    """(Hc, Wc) bool masks of the camera pixels of each plane (``calib.layout_cam``, in
+    undistorted camera coordinates), one per plane; one all-true mask for a single plane."""
     from ..lens import ideal_points
 
     wc, hc = calib.camera_size
-    fold = getattr(calib, "fold_cam", None)
-    if calib.n_planes == 1 or fold is None or not np.any(fold):
+    if calib.n_planes == 1:
         return [np.ones((hc, wc), bool)]
     yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
     xy = np.stack([xx, yy], axis=-1)
     xy = ideal_points(calib, xy)
-    neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
-    return [neg, ~neg]
+    label = calib.layout_cam.label(xy[..., 0], xy[..., 1])
+    return [label == p for p in range(calib.n_planes)]
 
 
 def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
@@ -468,4 +468,4 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
 __all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
            "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
            "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
-           "fold_segment", "pack_patterns", "RadiusModel", "SamplePlan", "Measurement"]
+           "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel", "SamplePlan", "Measurement"]
