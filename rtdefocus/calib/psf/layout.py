@@ -204,6 +204,47 @@ def _fold_samples(calib: Calibration, model: RadiusModel, plane: int, j: int,
     return pts[ok]
 
 
+def _separate_corners(points: np.ndarray, planes: np.ndarray, kinds: np.ndarray,
+                      model: RadiusModel, centroids: dict, dot_size, size) -> np.ndarray:
+    """Make the planes' corners fit in one dot pattern (in place); returns a keep-mask.
+
+    Where three or more planes meet at a vertex, their corners there face each other across
+    several folds, closer than two dots may be in one pattern (two planes' corners, each half a
+    dot spacing from their one fold, always fit). Such a corner is moved into its plane,
+    towards the centroid of its outline, until they fit; of two corners of one plane closer
+    than that (a fold meeting the frame near its corner), the second is dropped: the first
+    stands for both."""
+    keep = np.ones(len(points), bool)
+    idx = np.flatnonzero(kinds == "corner")
+    pts = points[idx].astype(np.float64)
+    pl = planes[idx]
+    for _ in range(20):
+        r = np.array([model(q[None], int(p))[0] for q, p in zip(pts, pl, strict=True)])
+        sup, win = _dot_geometry(r, dot_sizes(r, dot_size))
+        push = np.zeros_like(pts)
+        for a in range(len(idx)):
+            for b in range(a + 1, len(idx)):
+                if not (keep[idx[a]] and keep[idx[b]]):
+                    continue
+                need = max(win[a] + sup[b], win[b] + sup[a]) + 2     # pack_patterns' test
+                d = float(np.max(np.abs(pts[a] - pts[b])))
+                if d >= need:
+                    continue
+                if pl[a] == pl[b]:
+                    keep[idx[b]] = False
+                    continue
+                for i in (a, b):
+                    u = centroids[int(pl[i])] - pts[i]
+                    n = float(np.hypot(*u))
+                    if n > 1e-9:
+                        push[i] += min((need - d) / 2 + 1, n) * u / n
+        if not push.any():
+            break
+        pts += push
+    points[idx] = _snap(pts, size)
+    return keep
+
+
 def _iso_stretch(poly: np.ndarray, coef: np.ndarray, radius_step: float,
                  max_spacing: float) -> np.ndarray:
     """2×2 metric that makes the iso-grid's cells square: stretch along the blur gradient by
@@ -332,6 +373,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
     segs = [] if one_region else fold_segments(calib, inset=edge_inset)
     all_pts, all_planes, all_kinds = [], [], []
     metric: dict = {}
+    centroids: dict = {}
 
     fold_pts_paper = None
     if layout == "paper" and not one_region:
@@ -361,6 +403,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
             poly = calib.layout.polygon(inset_frame(size, edge_inset), p, d_max)
             def rfun(xy, p=p):
                 return model(xy, p)
+        centroids[p] = poly.mean(axis=0) if len(poly) else None
         if len(poly) < 3:
             raise CalibrationError(f"plane {p} leaves no room for PSF samples after insetting "
                                    "from the frame and its folds; is a fold near the frame edge, "
@@ -414,6 +457,9 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
     points = np.vstack(all_pts)
     planes = np.concatenate(all_planes)
     kinds_arr = np.array(all_kinds)
+    if not one_region:
+        keep = _separate_corners(points, planes, kinds_arr, model, centroids, dot_size, size)
+        points, planes, kinds_arr = points[keep], planes[keep], kinds_arr[keep]
     if layout != "paper":
         # Thin across all planes, most important kinds first.
         radius = np.array([model(pt[None].astype(np.float64), 0 if one_region else int(pl))[0]
