@@ -14,9 +14,10 @@ The stage, step by step (every step only calls ``capture``):
    dot spacing, how far from the fold the fold samples go, and where samples are needed.
 2. **Layout** (``layout``): ``"paper"`` — each plane's 4 corners (inset) plus 2 points on the
    fold, blended bilinearly as in the paper (§2.4); ``"default"`` — the plane's corners,
-   points along the fold on *each* side just farther from it than the local blur (each dot
+   points along every fold on *each* side just farther from it than the local blur (each dot
    lights one wall only, yet measures the kernel at the fold; the two sides are staggered so
-   they share a pattern), and lines of equal predicted blur ``radius_step`` px of radius apart,
+   they share a pattern; where three planes meet, their corners are moved apart into their
+   planes so that they share one too), and lines of equal predicted blur ``radius_step`` px of radius apart,
    each sampled every ``max_spacing`` px: blending two discs of different radii is a poor disc
    (Δr = 1 px gives ~15-20 % error mid-way), so the blur's own gradient sets the density;
    ``"dense"`` — a regular grid per plane. Samples that would share a dot's window with a
@@ -51,7 +52,8 @@ The stage, step by step (every step only calls ``capture``):
    to 1. The common window k (odd) is set by the largest support.
 6. **F**: per pixel, indices and weights of ≤ 4 PSFs of its plane — barycentric on a per-plane
    Delaunay triangulation (``default``, ``dense``; outside the samples' hull: the nearest hull
-   edge, clamped) or bilinear on quads (``paper``). Never across the fold unless ``cross_fold``.
+   edge, clamped) or bilinear on quads (``paper``). Never across a fold unless ``cross_fold``:
+   a pixel blends only its own plane's samples (and, ``paper``, the ends of its plane's folds).
 
 Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
 (6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
@@ -454,9 +456,10 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
     Returns
     -------
     Calibration
-        ``psf_points_proj`` (N, 2) float32, ``psf_plane`` (N,) int32 (-1: on the fold, both
-        planes), ``psfs`` (N, k, k) float32 unit sum, ``pix_idx`` (Hp, Wp, 4) int32,
-        ``pix_wts`` (Hp, Wp, 4) float32, and ``meta["psf"]`` (layout, counts, radii, window).
+        ``psf_points_proj`` (N, 2) float32, ``psf_plane`` (N,) int32 (negative: on fold j,
+        ``fold_code(j)`` = -1 - j, used by its two planes), ``psfs`` (N, k, k) float32 unit
+        sum, ``pix_idx`` (Hp, Wp, 4) int32, ``pix_wts`` (Hp, Wp, 4) float32, and
+        ``meta["psf"]`` (layout, counts, radii, window).
     """
     o = psf_options(options, **overrides)
     key = (str(o.layout), bool(o.cross_fold))
@@ -468,4 +471,5 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
 __all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
            "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
            "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
-           "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel", "SamplePlan", "Measurement"]
+           "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel",
+           "SamplePlan", "Measurement"]
