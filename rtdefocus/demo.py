@@ -49,16 +49,21 @@ StepFn = Callable[[str], None]
 
 
 def _fold_zoom_box(calib, rect, reference: np.ndarray, size: int = 96) -> tuple[slice, slice]:
-    """A square of camera pixels on the fold (the middle of the rect for one plane), placed
+    """A square of camera pixels on a fold (the middle of the rect for one plane), placed
     where the sharp reference has the most detail, so the zoom shows what compensation does."""
+    from .calib.planar import fold_segments_cam
+
     x, y, w, h = rect
+    # Candidate centres: along every fold's camera segment, else down the rect's middle.
+    centres = [np.asarray(seg[0]) + t * (np.asarray(seg[1]) - seg[0])
+               for seg in fold_segments_cam(calib.projector_size, calib.H_cam_from_proj,
+                                            calib.layout) if seg is not None
+               for t in np.linspace(0.0, 1.0, 17)]
+    centres = [c for c in centres if x <= c[0] < x + w and y <= c[1] < y + h]
+    if not centres:
+        centres = [(x + w / 2.0, cy) for cy in np.linspace(y + size / 2, y + h - size / 2, 9)]
     best, best_score = None, -1.0
-    for cy in np.linspace(y + size / 2, y + h - size / 2, 9):
-        if calib.n_planes == 2 and abs(calib.fold_cam[0]) > 1e-9:
-            a, b, c = calib.fold_cam
-            cx = -(b * cy + c) / a
-        else:
-            cx = x + w / 2.0
+    for cx, cy in centres:
         x0 = int(np.clip(cx - size / 2, x, x + w - size))
         y0 = int(np.clip(cy - size / 2, y, y + h - size))
         box = (slice(y0, y0 + size), slice(x0, x0 + size))
@@ -109,7 +114,7 @@ def table_markdown(rows: list[ImageScores], preset: str) -> str:
             lines += ["", f"*{r.name}*: the target mapped into the headroom; geometry only and "
                       f"the sharp reference are shown at the same reduced contrast{clipped}."]
     if rows[0].psnr_fold:
-        lines += ["", "### PSNR within 24 camera px of the fold", "",
+        lines += ["", "### PSNR within 24 camera px of a fold", "",
                   "| image | " + " | ".join(METHOD_LABELS.get(m, m) for m in methods) + " |",
                   "|---|" + "---|" * len(methods)]
         for r in rows:

@@ -1,8 +1,8 @@
 """Image scores: how close a camera view is to the sharp reference.
 
 * :func:`psnr`, :func:`ssim` — scores of a camera view against a reference, optionally inside a
-  mask: :func:`rect_mask` (the display rectangle), :func:`near_fold_mask` (the band around the
-  fold);
+  mask: :func:`rect_mask` (the display rectangle), :func:`near_folds_mask` (the band around
+  every fold; :func:`near_fold_mask` around one line);
 * :func:`edge_pixels` — Canny edge counts, as the paper's Table 1;
 * :func:`score_image` — project one image every way on a set-up and score every view
   (:class:`ImageScores`); the demo's table and ``rtdefocus eval`` are built from it.
@@ -19,7 +19,8 @@ import numpy as np
 from .errors import InputError
 from .reference.lut import decode_lut, encode_lut, increasing_lut
 
-__all__ = ["psnr", "ssim", "near_fold_mask", "rect_mask", "camera_view", "edge_pixels", "ImageScores",
+__all__ = ["psnr", "ssim", "near_fold_mask", "near_folds_mask", "rect_mask", "camera_view",
+           "edge_pixels", "ImageScores",
            "score_image", "coefficient_of_variation", "psnr_affine"]
 
 # Canny thresholds for the edge-pixel counts (the paper's Table 1 gives none; OpenCV's usual pair).
@@ -33,7 +34,7 @@ class ImageScores:
     name: str
     psnr: dict[str, float] = field(default_factory=dict)        # method -> dB, display rect
     ssim: dict[str, float] = field(default_factory=dict)        # method -> SSIM, display rect
-    psnr_fold: dict[str, float] = field(default_factory=dict)   # method -> dB, near-fold band
+    psnr_fold: dict[str, float] = field(default_factory=dict)   # method -> dB, near-folds band
     edges_input: dict[str, int] = field(default_factory=dict)   # geometry / defocus corrected
     edges_output: dict[str, int] = field(default_factory=dict)  # camera views of the same
     clipped: dict[str, float] = field(default_factory=dict)     # method -> fraction of P at 0 or 1
@@ -142,6 +143,54 @@ def near_fold_mask(fold_line: np.ndarray, shape: tuple[int, int], half_width: fl
     return np.abs(a * xs + b * ys + c) / norm <= half_width
 
 
+def near_folds_mask(calib, shape: tuple[int, int], half_width: float) -> np.ndarray:
+    """Camera pixels within ``half_width`` px of any fold of ``calib`` (ideal camera pixels).
+
+    Each fold's band follows its camera line (``calib.folds_cam``) along the part that really
+    separates its two planes (:meth:`~rtdefocus.calib.planar.PlaneLayout.fold_segments` of the
+    projector frame, mapped to the camera); where that part ends inside the frame (a vertex
+    where folds meet) the band ends in a half disc, where it leaves the frame the band goes on
+    (only the display rectangle is scored). One plane: all False.
+
+    Parameters
+    ----------
+    calib : Calibration with the geometry section.
+    shape : (H, W) of the camera image the mask is for.
+    half_width : px.
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    from .calib.planar import fold_segments_cam, projector_frame
+
+    out = np.zeros(shape, bool)
+    if calib.n_planes == 1:
+        return out
+    frame = projector_frame(calib.projector_size)
+    lo_f, hi_f = frame[0], frame[2]
+    segs = calib.layout.fold_segments(frame)
+    segs_cam = fold_segments_cam(calib.projector_size, calib.H_cam_from_proj, calib.layout)
+    ys, xs = np.mgrid[0:shape[0], 0:shape[1]]
+    for j, (seg, ends) in enumerate(zip(segs, segs_cam, strict=True)):
+        if seg is None:
+            continue
+        band = near_fold_mask(calib.folds_cam[j], shape, half_width)
+        a, b, _ = np.asarray(calib.folds_cam[j], np.float64) / np.hypot(*calib.folds_cam[j][:2])
+        d = np.array([-b, a])
+        t_end = ends @ d
+        # An end on the frame's border leaves the frame: the band goes on past it.
+        border = np.any((np.abs(seg - lo_f) < 1e-6) | (np.abs(seg - hi_f) < 1e-6), axis=1)
+        t = xs * d[0] + ys * d[1]
+        for k, sign in ((int(np.argmin(t_end)), -1.0), (int(np.argmax(t_end)), 1.0)):
+            if border[k]:
+                continue
+            past = sign * (t - t_end[k]) > 0
+            band &= ~past | (np.hypot(xs - ends[k, 0], ys - ends[k, 1]) <= half_width)
+        out |= band
+    return out
+
+
 def rect_mask(rect: tuple[int, int, int, int], shape: tuple[int, int]) -> np.ndarray:
     """(H, W) bool mask of an OpenCV Rect ``(x, y, w, h)`` (clipped to the image)."""
     x, y, w, h = (int(v) for v in rect)
@@ -176,8 +225,7 @@ def score_image(procam, calib, comps: dict, name: str, image: np.ndarray,
     rect = calib.display_rect((w, h))
     wc, hc = calib.camera_size
     mask = rect_mask(rect, (hc, wc))
-    band = mask & near_fold_mask(calib.fold_cam, (hc, wc), fold_band_px) \
-        if calib.n_planes == 2 else None
+    band = mask & near_folds_mask(calib, (hc, wc), fold_band_px) if calib.n_planes > 1 else None
     geometry = next(iter(comps.values()))
     warped = geometry.warp(image)
     if headroom is not None:

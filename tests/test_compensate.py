@@ -17,7 +17,7 @@ from rtdefocus.reference.blur import blur_forward_filter2d
 from rtdefocus.reference.lut import decode_lut
 from rtdefocus.reference.metric import distance
 from rtdefocus.samples import photographs, text_slide
-from rtdefocus.scores import near_fold_mask, psnr, rect_mask, ssim
+from rtdefocus.scores import near_folds_mask, psnr, rect_mask, ssim
 from rtdefocus.sim import oracle_calibration
 
 # Smaller than the default 800x600 / 1280x960 to stay fast: the blur radii scale with the
@@ -67,7 +67,7 @@ def camera_views(preset: str, name: str, image: np.ndarray) -> dict:
         shape = (CAMERA[1], CAMERA[0])
         mask = rect_mask(rect, shape)
         views = {"sharp": procam.capture(warped, sharp=True), "none": procam.capture(warped),
-                 "mask": mask, "band": mask & near_fold_mask(calib.fold_cam, shape, BAND),
+                 "mask": mask, "band": mask & near_folds_mask(calib, shape, BAND),
                  "rect": rect}
         for m in ("ycbcr", "rgb"):
             comps[m].reset()

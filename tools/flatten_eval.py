@@ -27,7 +27,7 @@ from rtdefocus.samples import photographs
 from rtdefocus.scores import (
     camera_view,
     coefficient_of_variation,
-    near_fold_mask,
+    near_folds_mask,
     psnr,
     psnr_affine,
     rect_mask,
@@ -63,7 +63,7 @@ def evaluate(procam, calib, images: dict, backend="numpy", iterations=None) -> d
         h, w = img.shape[:2]
         rect = calib.display_rect((w, h))
         m = inset_mask(rect, (hc, wc))
-        band = m & near_fold_mask(calib.fold_cam, (hc, wc), 12.0)
+        band = m & near_folds_mask(calib, (hc, wc), 12.0)
         white = on_white_wall(img, rect, (hc, wc))
         for s in ("keep", "flatten"):
             geo = comps[(s, "none")].compensate(img)

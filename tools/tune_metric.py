@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rtdefocus import sim  # noqa: E402
 from rtdefocus.compensate import Compensator  # noqa: E402
 from rtdefocus.samples import photographs, text_slide  # noqa: E402
-from rtdefocus.scores import camera_view, near_fold_mask, psnr, rect_mask, ssim  # noqa: E402
+from rtdefocus.scores import camera_view, near_folds_mask, psnr, rect_mask, ssim  # noqa: E402
 from rtdefocus.sim import oracle_calibration  # noqa: E402
 
 
@@ -171,8 +171,7 @@ def study_table(scenes, args) -> list[dict]:
         comps = {m: Compensator(sc.calib, backend=args.backend, method=m)
                  for m in ("ycbcr", "rgb", "wiener")}
         wc, hc = args.camera
-        band = near_fold_mask(sc.calib.fold_cam, (hc, wc), args.band) if sc.calib.n_planes == 2 \
-            else np.zeros((hc, wc), bool)
+        band = near_folds_mask(sc.calib, (hc, wc), args.band)
         print(f"{sc.procam.preset} {args.size[0]}x{args.size[1]}: PSNR dB / SSIM (display rect | "
               f"fold band ±{args.band} px)")
         print(f"  {'image':10s}" + "".join(f"{m:>28s}" for m in ("geometry", *comps, "geometry+hr",

@@ -8,12 +8,15 @@ import numpy as np
 from ..errors import InputError
 from .file import Calibration
 from .geometry import GeometryDetail
-from .planar import apply_h, plane_polygons_proj, segment_in_mask
+from .planar import apply_h, fold_segments_cam, plane_polygons_proj
 
 __all__ = ["geometry_diagnostics"]
 
 # --------------------------------------------------------------------------- diagnostics
-_PLANE_TINT = np.array([[60, 120, 255], [255, 150, 40]], np.float32)   # RGB per plane
+# RGB per plane: blue, orange, then colours apart from the lines' green/cyan and the folds' yellow.
+_PLANE_TINT = np.array([[60, 120, 255], [255, 150, 40], [200, 60, 220], [40, 200, 120],
+                        [230, 60, 60], [140, 100, 60], [120, 120, 255], [255, 120, 180]],
+                       np.float32)     # one per plane up to MAX_PLANES
 
 
 def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = None,
@@ -32,9 +35,10 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
     Returns
     -------
     (Hc, Wc, 3) uint8 RGB: the camera view (dimmed), each plane tinted (blue = plane 0,
-    orange = plane 1), detected lines (green: vertical, cyan: horizontal), kinks (red: on the
-    fold, hollow grey: rejected), the fold (yellow), the display rectangles (magenta 4:3,
-    white 16:9, ...) and a caption.
+    orange = plane 1, purple = plane 2, ...), detected lines (green: vertical, cyan:
+    horizontal), kinks (red: on the fold, hollow grey: rejected), every fold (yellow, where it
+    separates its two planes), the display rectangles (magenta 4:3, white 16:9, ...) and a
+    caption.
     """
     detail = detail if detail is not None else calib.geometry_detail
     wc, hc = calib.camera_size
@@ -71,10 +75,7 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
                 cv2.circle(img, c, 5 << sh, (255, 30, 30), -1, cv2.LINE_AA, shift=sh)
             else:
                 cv2.circle(img, c, 5 << sh, (170, 170, 170), 1, cv2.LINE_AA, shift=sh)
-    if calib.n_planes == 2:
-        lit = np.zeros((hc, wc), np.uint8)
-        cv2.fillPoly(lit, [np.round(calib.lit_polygon_cam).astype(np.int32)], 1)
-        seg = segment_in_mask(calib.fold_cam, lit.astype(bool))
+    for seg in fold_segments_cam(calib.projector_size, calib.H_cam_from_proj, calib.layout):
         if seg is not None:
             cv2.line(img, tuple(int(v) for v in P(seg[0])), tuple(int(v) for v in P(seg[1])),
                      (255, 255, 0), 2, cv2.LINE_AA, shift=sh)

@@ -20,7 +20,8 @@ from ..errors import InputError
 __all__ = [
     "apply_h", "apply_h_per_plane", "normalise_line", "line_eval", "tls_line", "canonical_line",
     "segment_in_mask", "clip_polygon", "projector_frame", "inset_frame", "fold_sign",
-    "MAX_PLANES", "MAX_FOLDS", "PlaneLayout", "plane_polygons_proj", "plane_polygon", "lit_polygon",
+    "MAX_PLANES", "MAX_FOLDS", "PlaneLayout", "fold_segments_cam", "plane_polygons_proj",
+    "plane_polygon", "lit_polygon",
     "points_in_polygon",
     "largest_inscribed_rect",
 ]
@@ -313,6 +314,17 @@ class PlaneLayout:
     def __repr__(self) -> str:
         return (f"PlaneLayout({self.n_planes} planes, folds {np.round(self.folds, 4).tolist()}, "
                 f"fold_planes {self.fold_planes.tolist()})")
+
+
+def fold_segments_cam(projector_size, H_cam_from_proj: np.ndarray,
+                      layout: PlaneLayout) -> list[np.ndarray | None]:
+    """Per fold of ``layout``, the part that separates its planes inside the projector frame
+    (:meth:`PlaneLayout.fold_segments`) in camera pixels: its ends (2, 2) mapped through the
+    homography of the plane on its negative side (both planes map the fold to one camera
+    line); None where the planes do not meet in the frame."""
+    segs = layout.fold_segments(projector_frame(projector_size))
+    return [None if seg is None else apply_h(H_cam_from_proj[layout.fold_planes[j][0]], seg)
+            for j, seg in enumerate(segs)]
 
 
 def plane_polygons_proj(projector_size, planes, n_planes: int) -> list[np.ndarray]:

@@ -20,7 +20,7 @@ camera-linear light. (Without this, a camera with an unknown curve makes the rec
 exponent wrong — with ambient light the composed curve is not even a power law.)
 
 Γ and α are mapped into projector pixels through each plane's homography (the plane of a
-projector pixel is given by the fold line, as in the warp): Γ = black (smoothed within each
+projector pixel is given by its plane layout, as in the warp): Γ = black (smoothed within each
 plane: it is a few camera codes, mostly noise in one frame), α = white − black. Within a blur
 radius of the frame edge α includes the blurred white frame's fall-off over the edge, i.e. it
 is exactly what the projector's full white produces at each pixel (≈ the in-focus α inside).
@@ -258,7 +258,7 @@ def _monotone_lut(levels: np.ndarray, values: np.ndarray) -> np.ndarray:
 def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sigma: float
                       ) -> np.ndarray:
     """Normalised Gaussian smoothing of (H, W, C) within each plane's valid pixels, so the
-    walls' different albedos do not bleed across the fold."""
+    walls' different albedos do not bleed across a fold (any number of planes)."""
     out = np.zeros_like(img)
     for p in np.unique(plane):
         m = ((plane == p) & valid).astype(np.float32)

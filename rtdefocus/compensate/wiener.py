@@ -21,7 +21,8 @@ def wiener_prefilter(target: np.ndarray, psfs: np.ndarray, psf_plane: np.ndarray
     ----------
     target : (3, H, W) float32, linear light
     psfs : (N, k, k) float32 (gather kernels, unit sum)
-    psf_plane : (N,) int, plane of each PSF
+    psf_plane : (N,) int, plane of each PSF (negative: on a fold, left out; any number of
+        planes)
     plane_map : (H, W) int, plane of each pixel
     nsr : noise-to-signal constant (larger: less sharpening, less ringing)
 

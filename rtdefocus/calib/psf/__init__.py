@@ -14,9 +14,10 @@ The stage, step by step (every step only calls ``capture``):
    dot spacing, how far from the fold the fold samples go, and where samples are needed.
 2. **Layout** (``layout``): ``"paper"`` — each plane's 4 corners (inset) plus 2 points on the
    fold, blended bilinearly as in the paper (§2.4); ``"default"`` — the plane's corners,
-   points along the fold on *each* side just farther from it than the local blur (each dot
+   points along every fold on *each* side just farther from it than the local blur (each dot
    lights one wall only, yet measures the kernel at the fold; the two sides are staggered so
-   they share a pattern), and lines of equal predicted blur ``radius_step`` px of radius apart,
+   they share a pattern; where three planes meet, their corners are moved apart into their
+   planes so that they share one too), and lines of equal predicted blur ``radius_step`` px of radius apart,
    each sampled every ``max_spacing`` px: blending two discs of different radii is a poor disc
    (Δr = 1 px gives ~15-20 % error mid-way), so the blur's own gradient sets the density;
    ``"dense"`` — a regular grid per plane. Samples that would share a dot's window with a
@@ -51,7 +52,8 @@ The stage, step by step (every step only calls ``capture``):
    to 1. The common window k (odd) is set by the largest support.
 6. **F**: per pixel, indices and weights of ≤ 4 PSFs of its plane — barycentric on a per-plane
    Delaunay triangulation (``default``, ``dense``; outside the samples' hull: the nearest hull
-   edge, clamped) or bilinear on quads (``paper``). Never across the fold unless ``cross_fold``.
+   edge, clamped) or bilinear on quads (``paper``). Never across a fold unless ``cross_fold``:
+   a pixel blends only its own plane's samples (and, ``paper``, the ends of its plane's folds).
 
 Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
 (6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
@@ -85,8 +87,8 @@ from .dots import (
     pack_patterns,
 )
 from .kernel_field import interpolation_field
-from .layout import LAYOUTS, SamplePlan, fold_segment, plan_samples
-from .pilot import FOLD, RadiusModel, pilot_radius
+from .layout import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
+from .pilot import FOLD, RadiusModel, fold_code, pilot_radius
 
 log = logging.getLogger(__name__)
 
@@ -225,14 +227,14 @@ class PsfRun:
         # Every dot is measured the same way whatever layout asked for it: its window and dot
         # size follow the per-plane pilot model (a dot on the fold: the larger of the two sides).
         uplane_a = np.array(uplane)
-        if calib.n_planes == 2:
-            on_plane = uplane_a != FOLD
+        if calib.n_planes > 1:
+            on_plane = uplane_a >= 0               # not on a fold (fold_code < 0)
             uplane_a[on_plane] = calib.plane_of(upts_a[on_plane, 0], upts_a[on_plane, 1])
         urad_a = np.empty(len(upts_a))
         for p in np.unique(uplane_a):
             sel = uplane_a == p
             urad_a[sel] = model(upts_a[sel].astype(np.float64),
-                                int(p) if calib.n_planes == 2 else 0)
+                                int(p) if calib.n_planes > 1 else 0)
         used = capture.counts.get("psf", 0) - self.first_count
         averages = o.averages
         if averages is None:
@@ -344,7 +346,8 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
         mine = plan.planes == reg
         good = np.flatnonzero(mine & ~skipped)
         if len(good) < _MIN_MEASURED:
-            where = "on the fold" if reg == FOLD else f"on plane {int(reg)}"
+            where = ("on the fold" if reg == FOLD else f"on fold {fold_code(reg)}") if reg < 0 \
+                else f"on plane {int(reg)}"
             raise CalibrationError(
                 f"only {len(good)} of {int(mine.sum())} PSF dots {where} could be measured (need "
                 f"{_MIN_MEASURED}); the rest are too faint against the camera noise and the room's "
@@ -362,19 +365,18 @@ def fill_skipped(raw: np.ndarray, plan: SamplePlan, skipped: np.ndarray) -> np.n
 
 
 def camera_sides(calib: Calibration) -> list[np.ndarray]:
-    """(Hc, Wc) bool masks of the camera pixels on each side of the fold (``fold_cam``, in
-    undistorted camera coordinates); one all-true mask for a single plane."""
+    """(Hc, Wc) bool masks of the camera pixels of each plane (``calib.layout_cam``, in
+    undistorted camera coordinates), one per plane; one all-true mask for a single plane."""
     from ..lens import ideal_points
 
     wc, hc = calib.camera_size
-    fold = getattr(calib, "fold_cam", None)
-    if calib.n_planes == 1 or fold is None or not np.any(fold):
+    if calib.n_planes == 1:
         return [np.ones((hc, wc), bool)]
     yy, xx = np.mgrid[0:hc, 0:wc].astype(np.float64)
     xy = np.stack([xx, yy], axis=-1)
     xy = ideal_points(calib, xy)
-    neg = fold[0] * xy[..., 0] + fold[1] * xy[..., 1] + fold[2] < 0
-    return [neg, ~neg]
+    label = calib.layout_cam.label(xy[..., 0], xy[..., 1])
+    return [label == p for p in range(calib.n_planes)]
 
 
 def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
@@ -454,9 +456,10 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
     Returns
     -------
     Calibration
-        ``psf_points_proj`` (N, 2) float32, ``psf_plane`` (N,) int32 (-1: on the fold, both
-        planes), ``psfs`` (N, k, k) float32 unit sum, ``pix_idx`` (Hp, Wp, 4) int32,
-        ``pix_wts`` (Hp, Wp, 4) float32, and ``meta["psf"]`` (layout, counts, radii, window).
+        ``psf_points_proj`` (N, 2) float32, ``psf_plane`` (N,) int32 (negative: on fold j,
+        ``fold_code(j)`` = -1 - j, used by its two planes), ``psfs`` (N, k, k) float32 unit
+        sum, ``pix_idx`` (Hp, Wp, 4) int32, ``pix_wts`` (Hp, Wp, 4) float32, and
+        ``meta["psf"]`` (layout, counts, radii, window).
     """
     o = psf_options(options, **overrides)
     key = (str(o.layout), bool(o.cross_fold))
@@ -468,4 +471,5 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
 __all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
            "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
            "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
-           "fold_segment", "pack_patterns", "RadiusModel", "SamplePlan", "Measurement"]
+           "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel",
+           "SamplePlan", "Measurement"]

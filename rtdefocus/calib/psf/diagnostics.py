@@ -8,9 +8,14 @@ import numpy as np
 from ...errors import CalibrationError, InputError
 from ..file import Calibration
 from .dots import equivalent_radius
-from .layout import fold_segment
+from .layout import fold_segments
 
 __all__ = ["radius_map", "psf_diagnostics"]
+
+# Background of each plane in the PSF panel: dark, apart enough to see the planes, and dim
+# under the kernels' inferno colours (plane 0 and 1 as before: grey and blue-grey).
+_PLANE_SHADES = np.array([[24, 24, 24], [40, 40, 56], [56, 36, 36], [32, 52, 36],
+                          [52, 48, 24], [48, 28, 52], [24, 48, 52], [56, 56, 56]], np.uint8)
 
 
 def radius_map(calib: Calibration) -> np.ndarray:
@@ -43,10 +48,11 @@ def psf_diagnostics(calib: Calibration, truth_radius: np.ndarray | None = None,
     if calib.psfs is None:
         raise CalibrationError("this calibration has no PSF section; run the kernel stage")
     wp, hp = calib.projector_size
-    # Panel 1: PSFs (each scaled to its own peak), magnified, over the plane map.
+    # Panel 1: PSFs (each scaled to its own peak), magnified, over the plane map (each plane
+    # its own dark shade).
     panel = np.full((hp, wp, 3), 24, np.uint8)
-    if calib.n_planes == 2:
-        panel[calib.plane_map() == 1] = (40, 40, 56)
+    if calib.n_planes > 1:
+        panel[:] = _PLANE_SHADES[calib.plane_map() % len(_PLANE_SHADES)]
     k = calib.psfs.shape[1]
     for (x, y), psf in zip(calib.psf_points_proj, calib.psfs, strict=True):
         img = (255 * psf / max(float(psf.max()), 1e-12)).astype(np.uint8)
@@ -60,8 +66,7 @@ def psf_diagnostics(calib: Calibration, truth_radius: np.ndarray | None = None,
             m = img[ya - y0:yb - y0, xa - x0:xb - x0] > 0
             panel[ya:yb, xa:xb][m] = sub[m]
         cv2.circle(panel, (int(round(x)), int(round(y))), 1, (0, 255, 0), -1)
-    if calib.n_planes == 2:
-        seg = fold_segment(calib)
+    for seg in fold_segments(calib):
         if seg is not None:
             a, b = np.rint(seg).astype(int)
             cv2.line(panel, tuple(int(v) for v in a), tuple(int(v) for v in b), (0, 160, 255), 1)

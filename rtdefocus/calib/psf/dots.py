@@ -57,18 +57,14 @@ def pack_patterns(points: np.ndarray, support: np.ndarray, window: np.ndarray) -
 
 def camera_to_projector_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
     """Projector (x, y) of every (observed) camera pixel: undistorted by the lens, then
-    through the homography of the wall it sees (the side of ``fold_cam``). Returns two
+    through the homography of the wall it sees (its plane in ``calib.layout_cam``). Returns two
     (Hc, Wc) float64 arrays."""
     wc, hc = calib.camera_size
     ys, xs = np.mgrid[0:hc, 0:wc].astype(np.float64)
     if lens_k(calib) is not None:
         ideal = ideal_points(calib, np.stack([xs, ys], axis=-1))
         xs, ys = ideal[..., 0], ideal[..., 1]
-    if calib.n_planes == 2:
-        a, b, c = calib.fold_cam
-        plane = (a * xs + b * ys + c >= 0).astype(int)
-    else:
-        plane = np.zeros(xs.shape, int)
+    plane = calib.layout_cam.label(xs, ys).astype(int)
     return apply_h_per_plane(calib.H_proj_from_cam, plane, xs, ys)
 
 
@@ -77,7 +73,12 @@ def _camera_bbox(calib: Calibration, x: int, y: int, h: int) -> tuple[slice, sli
     corners = np.array([[x - h - 1, y - h - 1, 1], [x + h + 1, y - h - 1, 1],
                         [x + h + 1, y + h + 1, 1], [x - h - 1, y + h + 1, 1]], np.float64)
     cam = []
-    for H in calib.H_cam_from_proj:  # both walls: a window near the fold may span the two
+    Hs = calib.H_cam_from_proj
+    if calib.n_planes > 2:
+        # Only the walls near the window: a far wall's plane, extended, may pass behind the camera.
+        # (A plane meeting the square is within sqrt(2) half-sides of its nearest corner.)
+        Hs = Hs[calib.layout.outside(corners[:, 0], corners[:, 1]).min(axis=1) <= 1.5 * (h + 1)]
+    for H in Hs:  # both walls: a window near the fold may span the two
         q = corners @ H.T
         cam.append(q[:, :2] / q[:, 2:3])
     # The window is small: its corners, seen through the lens, bound it (the margins below

@@ -7,8 +7,8 @@ import numpy as np
 
 from ...errors import CalibrationError, InputError
 from ..file import Calibration
-from .layout import SamplePlan, _inward
-from .pilot import FOLD
+from .layout import SamplePlan, _bounding, _inward
+from .pilot import fold_code
 
 __all__ = ["interpolation_field"]
 
@@ -97,7 +97,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
 
     Parameters
     ----------
-    calib : Calibration (geometry); its fold decides each pixel's plane.
+    calib : Calibration (geometry); its plane layout decides each pixel's plane.
     plan : the samples (PSF i is measured at ``plan.points[i]``).
     mode : ``"planes"`` (per-plane blending; bilinear quads for ``paper``, else triangles),
         ``"cross"`` (one triangulation of all samples, ignoring the planes); default from the
@@ -120,9 +120,12 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
         regions = {0: np.ones(hp * wp, bool)}
         members = {0: np.arange(len(pts))}
     else:
+        # Each plane blends its own samples and those on its folds, never another plane's.
         plane = calib.plane_map().ravel()
-        regions = {p: plane == p for p in range(2)}
-        members = {p: np.flatnonzero((plan.planes == p) | (plan.planes == FOLD)) for p in range(2)}
+        regions = {p: plane == p for p in range(calib.n_planes)}
+        members = {p: np.flatnonzero((plan.planes == p) | np.isin(
+            plan.planes, [fold_code(j) for j in _bounding(calib, p)]))
+            for p in range(calib.n_planes)}
     for p, sel in regions.items():
         ids = members[p]
         if len(ids) == 0:
@@ -140,7 +143,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
                 a, b = pts[strip[0]], pts[strip[1]]
                 # Pixels beyond the line through the fold-side corners (towards the fold).
                 n = np.array([a[1] - b[1], b[0] - a[0]])
-                inward = _inward(calib, p)
+                inward = _inward(calib, fold_code(plan.planes[strip[2]]), p)
                 if n @ inward < 0:
                     n = -n
                 use_strip = (pix - a) @ n < 0

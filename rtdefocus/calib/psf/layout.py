@@ -11,55 +11,96 @@ import numpy as np
 
 from ...errors import CalibrationError, InputError
 from ..file import Calibration
-from ..planar import clip_polygon, fold_sign, inset_frame, plane_polygon
+from ..planar import clip_polygon, inset_frame
 from .dots import _dot_geometry, dot_sizes
-from .pilot import FOLD, RadiusModel
+from .pilot import RadiusModel, fold_code
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LAYOUTS", "SamplePlan", "plan_samples", "pack_distance", "fold_segment"]
+__all__ = ["LAYOUTS", "SamplePlan", "plan_samples", "pack_distance", "fold_segment", "fold_segments"]
 
 LAYOUTS = ("default", "paper", "dense")
 
 
+def fold_segments(calib: Calibration, inset: float = 0.0) -> list[np.ndarray | None]:
+    """Per fold of ``calib.layout``, the end points (2, 2) of the part of its line that really
+    separates its two planes (the shared edge of their outlines, :meth:`PlaneLayout.fold_segments`)
+    inside the frame of pixel centres shrunk by ``inset``; None where they do not meet there.
+    The ends are ordered along the line's direction (-b, a)."""
+    if calib.n_planes == 1:
+        return []
+    layout = calib.layout
+    folds = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)
+    wp, hp = calib.projector_size
+    out: list[np.ndarray | None] = []
+    for j, (a, b, c) in enumerate(folds):
+        p0 = -c * np.array([a, b])
+        d = np.array([-b, a])
+        lo, hi = -np.inf, np.inf
+        for k, (vmin, vmax) in enumerate(((inset, wp - 1 - inset), (inset, hp - 1 - inset))):
+            if abs(d[k]) < 1e-12:
+                if not vmin <= p0[k] <= vmax:
+                    lo, hi = np.inf, -np.inf
+                continue
+            t1, t2 = (vmin - p0[k]) / d[k], (vmax - p0[k]) / d[k]
+            lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+        # Where both planes' other folds keep it inside them (none for two planes): s · g(t) >= 0
+        # with g the other fold's value along this line.
+        for q in layout.fold_planes[j]:
+            for (ak, bk, ck), s in _other_folds(calib, q, j):
+                g0, g1 = s * (ak * p0[0] + bk * p0[1] + ck), s * (ak * d[0] + bk * d[1])
+                if abs(g1) < 1e-12:
+                    if g0 < 0:
+                        lo, hi = np.inf, -np.inf
+                elif g1 > 0:
+                    lo = max(lo, -g0 / g1)
+                else:
+                    hi = min(hi, -g0 / g1)
+        out.append(np.stack([p0 + lo * d, p0 + hi * d]) if lo < hi else None)
+    return out
+
+
 def fold_segment(calib: Calibration, inset: float = 0.0) -> np.ndarray | None:
-    """End points (2, 2) of the fold line inside the frame shrunk by ``inset``; None if absent."""
+    """End points (2, 2) of the fold of a two-plane calibration inside the frame shrunk by
+    ``inset``; None for one plane or no crossing. Any number of planes: :func:`fold_segments`."""
     if calib.n_planes != 2:
         return None
-    a, b, c = calib.fold_proj
-    p0 = -c * np.array([a, b])
-    d = np.array([-b, a])
-    wp, hp = calib.projector_size
-    lo, hi = -np.inf, np.inf
-    for k, (vmin, vmax) in enumerate(((inset, wp - 1 - inset), (inset, hp - 1 - inset))):
-        if abs(d[k]) < 1e-12:
-            if not vmin <= p0[k] <= vmax:
-                return None
-            continue
-        t1, t2 = (vmin - p0[k]) / d[k], (vmax - p0[k]) / d[k]
-        lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
-    if not lo < hi:
-        return None
-    return np.stack([p0 + lo * d, p0 + hi * d])
+    return fold_segments(calib, inset)[0]
 
 
-def _inward(calib: Calibration, plane: int) -> np.ndarray:
-    a, b, _ = calib.fold_proj
-    return fold_sign(plane) * np.array([a, b], np.float64)
+def _other_folds(calib: Calibration, plane: int, j: int) -> list[tuple[np.ndarray, float]]:
+    """The folds bounding ``plane`` other than fold ``j``: (line as stored, s) with
+    s · line(x) >= 0 inside the plane."""
+    folds = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)
+    signs = calib.layout.signs
+    return [(folds[k], float(signs[plane, k])) for k in range(len(folds))
+            if k != j and signs[plane, k] != 0]
 
 
-def _fold_dist(calib: Calibration, pts: np.ndarray, plane: int) -> np.ndarray:
-    """Signed distance of points into ``plane`` from the fold (positive inside)."""
-    a, b, c = calib.fold_proj
-    return fold_sign(plane) * (pts[:, 0] * a + pts[:, 1] * b + c)
+def _bounding(calib: Calibration, plane: int) -> list[int]:
+    """Indices of the folds that bound ``plane``."""
+    return [int(j) for j in np.flatnonzero(calib.layout.signs[plane])]
+
+
+def _inward(calib: Calibration, j: int, plane: int) -> np.ndarray:
+    """Unit normal of fold ``j`` pointing into ``plane``."""
+    a, b, _ = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)[j]
+    return float(calib.layout.signs[plane, j]) * np.array([a, b], np.float64)
+
+
+def _fold_dist(calib: Calibration, j: int, pts: np.ndarray, plane: int) -> np.ndarray:
+    """Signed distance of points into ``plane`` from fold ``j`` (positive inside)."""
+    a, b, c = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)[j]
+    return float(calib.layout.signs[plane, j]) * (pts[:, 0] * a + pts[:, 1] * b + c)
 
 
 @dataclass
 class SamplePlan:
     """Where to measure PSFs and how to blend them.
 
-    points : (N, 2) int projector pixels; planes : (N,) int (0/1, ``FOLD`` = on the fold,
-    0 for every sample when ``cross_fold``); kinds : (N,) str; radius : (N,) float, pilot
+    points : (N, 2) int projector pixels; planes : (N,) int (the plane, or
+    :func:`~.pilot.fold_code` (j) on fold j, used by its two planes (``FOLD`` for the one fold
+    of two planes); 0 for every sample when ``cross_fold``); kinds : (N,) str; radius : (N,) float, pilot
     prediction; quads : for ``paper``, per region a list of 4-index quads (cyclic order) used
     for bilinear blending, each with the half-plane it serves; metric : per region a 2×2
     matrix M, the triangulation is made of the points M x (default layout: stretched along the
@@ -138,25 +179,70 @@ def _thin(pts: np.ndarray, rank: np.ndarray, radius: np.ndarray, dot_size) -> np
     return keep
 
 
-def _fold_samples(calib: Calibration, model: RadiusModel, plane: int, count: int | None,
-                  spacing: float, edge_inset: float) -> np.ndarray:
-    """Samples along the fold on ``plane``'s side. The two planes' samples are staggered by
-    half a step along the fold, so that both sides fit in one pattern although each is only
-    just farther from the fold than the blur."""
-    seg = fold_segment(calib, inset=edge_inset)
-    if seg is None:
-        return np.zeros((0, 2))
+def _fold_samples(calib: Calibration, model: RadiusModel, plane: int, j: int,
+                  seg: np.ndarray, count: int | None, spacing: float, edge_inset: float
+                  ) -> np.ndarray:
+    """Samples along fold ``j`` (its segment ``seg``) on ``plane``'s side. The two planes'
+    samples are staggered by half a step along the fold (the plane on its negative side takes
+    the ends), so that both sides fit in one pattern although each is only just farther from
+    the fold than the blur."""
     length = float(np.hypot(*(seg[1] - seg[0])))
     n = count if count is not None else max(2, int(math.ceil(length / spacing)) + 1)
-    t = np.linspace(0, 1, n) if plane == 0 else (np.arange(n - 1) + 0.5) / (n - 1)
+    first = plane == calib.layout.fold_planes[j][0]
+    t = np.linspace(0, 1, n) if first else (np.arange(n - 1) + 0.5) / (n - 1)
     feet = seg[0] + t[:, None] * (seg[1] - seg[0])
     d = _fold_offset(model, feet, plane)
-    pts = feet + d[:, None] * _inward(calib, plane)
+    pts = feet + d[:, None] * _inward(calib, j, plane)
     # Keep them inside the frame: shift along the fold if the offset pushed them out.
     wp, hp = calib.projector_size
     lo, hi = np.array([edge_inset, edge_inset]), np.array([wp - 1 - edge_inset, hp - 1 - edge_inset])
     ok = np.all((pts >= lo) & (pts <= hi), axis=1)
+    # Near a vertex, as far from the plane's other folds as from this one (its light stays on
+    # its plane); the plane's corner, inset from both folds, samples the vertex.
+    for (ak, bk, ck), s in _other_folds(calib, plane, j):
+        ok &= s * (pts[:, 0] * ak + pts[:, 1] * bk + ck) >= d
     return pts[ok]
+
+
+def _separate_corners(points: np.ndarray, planes: np.ndarray, kinds: np.ndarray,
+                      model: RadiusModel, centroids: dict, dot_size, size) -> np.ndarray:
+    """Make the planes' corners fit in one dot pattern (in place); returns a keep-mask.
+
+    Where three or more planes meet at a vertex, their corners there face each other across
+    several folds, closer than two dots may be in one pattern (two planes' corners, each half a
+    dot spacing from their one fold, always fit). Such a corner is moved into its plane,
+    towards the centroid of its outline, until they fit; of two corners of one plane closer
+    than that (a fold meeting the frame near its corner), the second is dropped: the first
+    stands for both."""
+    keep = np.ones(len(points), bool)
+    idx = np.flatnonzero(kinds == "corner")
+    pts = points[idx].astype(np.float64)
+    pl = planes[idx]
+    for _ in range(20):
+        r = np.array([model(q[None], int(p))[0] for q, p in zip(pts, pl, strict=True)])
+        sup, win = _dot_geometry(r, dot_sizes(r, dot_size))
+        push = np.zeros_like(pts)
+        for a in range(len(idx)):
+            for b in range(a + 1, len(idx)):
+                if not (keep[idx[a]] and keep[idx[b]]):
+                    continue
+                need = max(win[a] + sup[b], win[b] + sup[a]) + 2     # pack_patterns' test
+                d = float(np.max(np.abs(pts[a] - pts[b])))
+                if d >= need:
+                    continue
+                if pl[a] == pl[b]:
+                    keep[idx[b]] = False
+                    continue
+                for i in (a, b):
+                    u = centroids[int(pl[i])] - pts[i]
+                    n = float(np.hypot(*u))
+                    if n > 1e-9:
+                        push[i] += min((need - d) / 2 + 1, n) * u / n
+        if not push.any():
+            break
+        pts += push
+    points[idx] = _snap(pts, size)
+    return keep
 
 
 def _iso_stretch(poly: np.ndarray, coef: np.ndarray, radius_step: float,
@@ -268,7 +354,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
         ``cross_fold``).
     layout : ``"default"`` | ``"paper"`` | ``"dense"``.
     cross_fold : lay out and blend over the whole frame as one region (ignore the planes).
-    fold_samples : samples along the fold per side (default: one every ``max_spacing / 2``).
+    fold_samples : samples along each fold per side (default: one every ``max_spacing / 2``).
     radius_step : default layout: predicted radius step between lines of equal blur (px).
     max_spacing : default layout: largest spacing along and across those lines (px).
     dense_spacing : dense layout: grid step (px).
@@ -283,17 +369,20 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
         raise InputError(f"layout must be one of {LAYOUTS}; got {layout!r}")
     size = calib.projector_size
     one_region = cross_fold or calib.n_planes == 1
-    regions = [0] if one_region else [0, 1]
+    regions = [0] if one_region else list(range(calib.n_planes))
+    segs = [] if one_region else fold_segments(calib, inset=edge_inset)
     all_pts, all_planes, all_kinds = [], [], []
     metric: dict = {}
+    centroids: dict = {}
 
     fold_pts_paper = None
     if layout == "paper" and not one_region:
-        seg = fold_segment(calib, inset=edge_inset)
-        if seg is None:
+        if all(seg is None for seg in segs):
             raise CalibrationError("the fold does not cross the projector frame; calibrate the "
                                    "geometry again or use a single plane")
-        fold_pts_paper = _snap(seg, size)
+        # The two ends of every fold, shared by its two planes.
+        fold_pts_paper = [(_snap(seg, size), fold_code(j))
+                          for j, seg in enumerate(segs) if seg is not None]
 
     for p in regions:
         if one_region:
@@ -301,8 +390,8 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
             def rfun(xy):
                 return model(xy, 0)
         else:
-            seg = fold_segment(calib, inset=edge_inset)
-            feet = seg if seg is not None else np.zeros((0, 2))
+            mine = [j for j in _bounding(calib, p) if segs[j] is not None]
+            feet = np.vstack([segs[j] for j in mine]) if mine else np.zeros((0, 2))
             d_max = 0.0
             if len(feet):
                 pd = float(pack_distance(model(feet, p), dot_size).max())
@@ -311,13 +400,15 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
                 # a full spacing from its fold points.
                 d_max = pd + 2 if layout == "paper" else max(
                     float(_fold_offset(model, feet, p).max()), math.ceil(pd / 2) + 1)
-            poly = plane_polygon(calib.projector_size, calib.fold_proj, calib.n_planes, p,
-                                 edge_inset, d_max)
+            poly = calib.layout.polygon(inset_frame(size, edge_inset), p, d_max)
             def rfun(xy, p=p):
                 return model(xy, p)
+        centroids[p] = poly.mean(axis=0) if len(poly) else None
         if len(poly) < 3:
             raise CalibrationError(f"plane {p} leaves no room for PSF samples after insetting "
-                                   "from the frame and the fold; is the fold near the frame edge?")
+                                   "from the frame and its folds; is a fold near the frame edge, "
+                                   "or is the plane a sliver? Calibrate the geometry again "
+                                   "(fewer planes)")
         kinds: list[str]
         if layout == "paper":
             pts = poly.copy()
@@ -339,8 +430,9 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
         else:  # default
             base = [poly]
             kinds = ["corner"] * len(poly)
-            if not one_region:
-                fs = _fold_samples(calib, model, p, fold_samples, max_spacing / 2, edge_inset)
+            for j in [] if one_region else mine:
+                fs = _fold_samples(calib, model, p, j, segs[j], fold_samples, max_spacing / 2,
+                                   edge_inset)
                 base.append(fs)
                 kinds += ["fold-side"] * len(fs)
             reg = 0 if one_region else p
@@ -365,16 +457,19 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
     points = np.vstack(all_pts)
     planes = np.concatenate(all_planes)
     kinds_arr = np.array(all_kinds)
+    if not one_region:
+        keep = _separate_corners(points, planes, kinds_arr, model, centroids, dot_size, size)
+        points, planes, kinds_arr = points[keep], planes[keep], kinds_arr[keep]
     if layout != "paper":
-        # Thin across both planes, most important kinds first.
+        # Thin across all planes, most important kinds first.
         radius = np.array([model(pt[None].astype(np.float64), 0 if one_region else int(pl))[0]
                            for pt, pl in zip(points, planes, strict=True)])
         rank = np.array([{"corner": 0, "fold-side": 1}.get(k, 2) for k in kinds_arr])
         keep = _thin(points, rank, radius, dot_size)
         points, planes, kinds_arr = points[keep], planes[keep], kinds_arr[keep]
-    if fold_pts_paper is not None:
-        points = np.vstack([points, fold_pts_paper])
-        planes = np.concatenate([planes, [FOLD, FOLD]])
+    for ends, code in fold_pts_paper or []:
+        points = np.vstack([points, ends])
+        planes = np.concatenate([planes, [code, code]])
         kinds_arr = np.concatenate([kinds_arr, ["fold", "fold"]])
     radius = np.empty(len(points))
     signed = np.empty(len(points))
@@ -398,11 +493,11 @@ def _orient(poly: np.ndarray) -> float:
 
 
 def _paper_quads(calib: Calibration, plan: SamplePlan, one_region: bool) -> dict:
-    """Bilinear quads of the paper layout: per plane its corner quad and, between the quad's
-    fold-side edge and the fold, a strip quad closed by the two fold points."""
+    """Bilinear quads of the paper layout: per plane its corner quad and, for a plane with one
+    fold (two planes), between the quad's fold-side edge and the fold, a strip quad closed by
+    the two fold points. A plane that is not a quadrilateral is blended on triangles."""
     quads: dict = {}
-    regions = [0] if one_region else [0, 1]
-    fold_idx = np.flatnonzero(plan.planes == FOLD)
+    regions = [0] if one_region else list(range(calib.n_planes))
     for p in regions:
         idx = np.flatnonzero(plan.planes == p)
         if len(idx) != 4:
@@ -410,10 +505,14 @@ def _paper_quads(calib: Calibration, plan: SamplePlan, one_region: bool) -> dict
                         "kernels are blended on triangles instead", p, len(idx))
             continue
         quads[p] = [("main", idx.tolist())]
-        if one_region or len(fold_idx) != 2:
+        if one_region:
+            continue
+        folds = _bounding(calib, p)
+        fold_idx = np.flatnonzero(np.isin(plan.planes, [fold_code(j) for j in folds]))
+        if len(folds) != 1 or len(fold_idx) != 2:
             continue
         pts = plan.points.astype(np.float64)
-        dist = _fold_dist(calib, pts[idx], p)
+        dist = _fold_dist(calib, folds[0], pts[idx], p)
         near = idx[np.argsort(dist)[:2]]                   # the two fold-side corners
         # Order the strip quad cyclically: corner A, corner B, fold point near B, near A.
         fa = fold_idx[np.argmin(np.hypot(*(pts[fold_idx] - pts[near[0]]).T))]

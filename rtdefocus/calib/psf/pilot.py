@@ -17,9 +17,15 @@ from ..radiometry import linearize_camera, to_projector
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FOLD", "RadiusModel", "pilot_radius", "support_bound"]
+__all__ = ["FOLD", "fold_code", "RadiusModel", "pilot_radius", "support_bound"]
 
 FOLD = -1          # psf_plane of a sample *on* the fold (paper layout), used by both planes
+
+
+def fold_code(j) -> int:
+    """psf_plane of a sample on fold ``j`` of the layout (paper layout; used by the fold's two
+    planes): ``FOLD - j``, so the one fold of two planes is :data:`FOLD`. Its own inverse."""
+    return FOLD - int(j)
 
 # Support bound from a predicted radius r: the light of a dot stays within SUPPORT_A r + B px.
 # Generous: the pilot is rough, and a hexagonal aperture's corners reach 1.1 r_eq.
@@ -31,7 +37,9 @@ class RadiusModel:
     """Predicted blur radius (projector px) from the pilot capture, per region.
 
     ``regions`` maps a region (plane index, or 0 for the whole frame) to a callable
-    ``f(xy (M, 2)) -> (M,)``; ``points``/``radii`` are the pilot measurements.
+    ``f(xy (M, 2)) -> (M,)``; ``points``/``radii`` are the pilot measurements; ``folds`` maps
+    a fold's :func:`fold_code` to its two planes (default: planes 0 and 1, the one fold of two
+    planes).
     """
 
     points: np.ndarray
@@ -39,6 +47,7 @@ class RadiusModel:
     regions: dict = field(default_factory=dict)
     kind: dict = field(default_factory=dict)
     coef: dict = field(default_factory=dict)     # (gx, gy, c) of the affine fits
+    folds: dict = field(default_factory=dict)    # fold_code(j) -> (plane, plane)
 
     def fit(self, region: int, sel: np.ndarray | None = None, force_affine: bool = False) -> None:
         """Fit ``region`` from the pilot points ``sel`` (all when None)."""
@@ -48,8 +57,8 @@ class RadiusModel:
 
     def __call__(self, xy: np.ndarray, region: int) -> np.ndarray:
         xy = np.atleast_2d(np.asarray(xy, np.float64))
-        if region == FOLD:  # on the fold the radius is continuous: either side's value
-            return np.maximum(*(self.regions[r](xy) for r in (0, 1)))
+        if region < 0:  # on a fold the radius is continuous: either side's value
+            return np.maximum(*(self.regions[r](xy) for r in self.folds.get(region, (0, 1))))
         return np.maximum(self.regions[region](xy), 0.5)
 
     def signed(self, xy: np.ndarray, region: int) -> np.ndarray:
@@ -57,7 +66,7 @@ class RadiusModel:
         fits): negative behind the focus. Kernels in front of and behind the focus need not
         match for a real lens, so they are never averaged together."""
         r = self(xy, region)
-        if region != FOLD and self.kind.get(region) == "abs-affine":
+        if region >= 0 and self.kind.get(region) == "abs-affine":
             c = self.coef[region]
             r = r * np.where(np.atleast_2d(xy) @ c[:2] + c[2] < 0, -1.0, 1.0)
         return r
@@ -191,8 +200,10 @@ def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, d
         model.fit(0)
     else:
         plane = calib.plane_of(model.points[:, 0], model.points[:, 1])
-        for p in range(2):
+        for p in range(calib.n_planes):
             model.fit(p, plane == p)
+        model.folds = {fold_code(j): (int(a), int(b))
+                       for j, (a, b) in enumerate(calib.layout.fold_planes)}
     log.info("pilot: %d/%d dots, radius %.2f..%.2f px, models %s", ok.sum(), len(pts),
              model.radii.min(), model.radii.max(), model.kind)
     return model
