@@ -89,13 +89,15 @@ def calibrations(procam, which: str) -> dict:
 
 def fold_ratios(res: dict, names, oracle: dict | None = None) -> dict:
     """Per photograph, the fold gain of flatten over keep's of the same calibration and, given
-    the oracle's results, over the true-kernel oracle's keep."""
+    the oracle's results, over the true-kernel oracle's keep (``oracle``) and flatten
+    (``oracle_flatten``: what the calibration's kernels lose, the surface aside)."""
     f = res["fold_gain"]
     out = {}
     for n in names:
         out[n] = {"same": f[n + "/flatten"] / f[n + "/keep"]}
         if oracle is not None:
             out[n]["oracle"] = f[n + "/flatten"] / oracle["fold_gain"][n + "/keep"]
+            out[n]["oracle_flatten"] = f[n + "/flatten"] / oracle["fold_gain"][n + "/flatten"]
     return out
 
 
@@ -131,7 +133,8 @@ def main():
               f"{res['cov']['keep'] / res['cov']['flatten']:.2f}x lower (>= 4)")
         for n in images:
             r = ratios[n]
-            vs = f"; vs oracle keep {r['oracle']:.2f}" if "oracle" in r else ""
+            vs = (f"; vs oracle keep {r['oracle']:.2f}, flatten {r['oracle_flatten']:.2f}"
+                  if "oracle" in r else "")
             print(f"  {n:10s} psnr_affine flatten - keep {k[n + '/flatten'] - k[n + '/keep']:+.2f} dB "
                   f"(>= 3); fold gain keep {res['fold_gain'][n + '/keep']:.2f} dB, flatten "
                   f"{res['fold_gain'][n + '/flatten']:.2f} dB, flatten/keep {r['same']:.2f}{vs} "
