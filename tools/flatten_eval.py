@@ -105,8 +105,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="240x180")
     # The simulator's own ratio (1280x960 for 800x600). At 4/3 the camera undersamples the
-    # foreshortened wall: the 1-px PSF dots are ill-posed there and the fabric preset's
-    # calibration failed ("no light within its support") at 400x300 and 240x180.
+    # foreshortened wall; the 1-px PSF dots' ridge (calib/psf/dots.py) keeps that calibration
+    # sound (it failed before it), with kernels about twice as far from the truth.
     ap.add_argument("--camera-scale", type=float, default=1.6,
                     help="camera size / projector size (default 1.6, the simulator's)")
     ap.add_argument("--preset", default="fabric")
