@@ -553,3 +553,42 @@ def test_cli_play_missing_source_exits_1(tmp_path, calib, capsys):
     setup = calib.save(tmp_path / "setup.npz")
     assert cli.main(["play", str(setup), str(tmp_path / "nope.mp4"), "--out", "null"]) == 1
     assert "not found" in capsys.readouterr().err
+
+
+def test_cli_play_flatten_reports_the_clipped_share(tmp_path, capsys):
+    """`play --flatten` prints and writes the share of clipped pixels the Compensator measured
+    on the frames (the fabric preset: a dark partition and a poster, so some content clips);
+    without --flatten no such report."""
+    calib = virtual_calibration("fabric")
+    setup = calib.save(tmp_path / "setup.npz")
+    frames = synthetic_frames(3, seed=4)
+    video = tmp_path / "in.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, PROJ)
+    for f in frames:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    # The frames as play decodes them (MJPG is lossy: the clipped share moves with the codes).
+    src = VideoSource(str(video))
+    decoded = [src.read().image for _ in frames]
+    src.close()
+    stats_file = tmp_path / "stats.json"
+    rc = cli.main(["-q", "play", str(setup), str(video), "--out", "null", "--flatten", "0.3",
+                   "--stats", str(stats_file), "--iterations", "2", "--backend", "numpy"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    data = json.loads(stats_file.read_text())["flatten"]
+    assert data["brightness"] == pytest.approx(0.3) and data["clipped"]["count"] == 3
+    ref = rd.Compensator(Calibration.load(setup), surface="flatten", brightness=0.3,
+                         backend="numpy", iterations=1)
+    shares = []
+    for f in decoded:
+        ref.compensate(f)
+        shares.append((ref.last_info["clipped"], ref.last_info["clipped_dark"]))
+    hi, lo = np.array(shares).T
+    assert data["clipped"]["mean"] == pytest.approx(hi.mean(), abs=1e-9), (data, shares)
+    assert data["clipped_dark"]["max"] == pytest.approx(lo.max(), abs=1e-9), (data, shares)
+    assert data["clipped"]["max"] > 0, "the bright test frames should clip on the dark partition"
+    assert f"too bright for the wall: mean {100 * data['clipped']['mean']:.1f} %" in out, out
+    assert "darker than the room light allows" in out
+    assert cli.main(["-q", "play", str(setup), str(video), "--out", "null"]) == 0
+    assert "clipped" not in capsys.readouterr().out

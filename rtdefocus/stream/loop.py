@@ -205,6 +205,7 @@ class Player(SlidesMixin):
             if stage != "total":
                 st.add(stage, sec)
         st.iterations.add(info.get("iterations", iterations or 0))
+        st.add_surface(info)
         dist = info.get("distances")
         if dist:
             st.residual = float(dist[-1])

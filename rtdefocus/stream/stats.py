@@ -83,6 +83,13 @@ class LoopStats:
         Solver iterations per compensated frame.
     residual : float or None
         The solver's last reported distance.
+    clipped, clipped_dark : Series
+        ``surface="flatten"`` only (empty otherwise): per Compensator call, the share of the
+        lit pixels showing content that the projector cannot bring to the flattened target —
+        too bright for the wall there, or darker than the room light on it allows (the
+        Compensator's ``last_info["clipped"]`` / ``["clipped_dark"]``).
+    brightness : float or None
+        ``surface="flatten"``: the global brightness b in use.
     """
 
     def __init__(self, source: str = "", sink: str = "") -> None:
@@ -94,6 +101,9 @@ class LoopStats:
         self.iterations = Series()
         self.residual: float | None = None
         self.budget: int | None = None
+        self.clipped = Series()
+        self.clipped_dark = Series()
+        self.brightness: float | None = None
         self.t_start = time.perf_counter()
         self.t_end: float | None = None
         self._fps_t = self.t_start
@@ -105,6 +115,14 @@ class LoopStats:
         if series is None:
             series = self.stages[stage] = Series()
         series.add(seconds)
+
+    def add_surface(self, info: dict) -> None:
+        """Count a compensated frame's clipped shares (a no-op unless ``surface="flatten"``)."""
+        if info.get("clipped") is None:
+            return
+        self.clipped.add(info["clipped"])
+        self.clipped_dark.add(info.get("clipped_dark") or 0.0)
+        self.brightness = info.get("brightness")
 
     def frame_out(self) -> None:
         """Count one frame written; refresh the displayed frame rate about twice a second."""
@@ -133,10 +151,14 @@ class LoopStats:
                        if k not in ("latency", "frame", "read"))
         it = f"iterations {int(self.iterations.last)}" if self.iterations.count else "iterations -"
         res = f"residual {self.residual:.4g}" if self.residual is not None else "residual -"
-        return [f"{self.fps_now:5.1f} fps  in {self.frames_in}  out {self.frames_out}  "
-                f"dropped {self.dropped}",
-                f"ms: {ms}",
-                f"{it}  {res}  mode {mode}{'  PAUSED' if paused else ''}"]
+        lines = [f"{self.fps_now:5.1f} fps  in {self.frames_in}  out {self.frames_out}  "
+                 f"dropped {self.dropped}",
+                 f"ms: {ms}",
+                 f"{it}  {res}  mode {mode}{'  PAUSED' if paused else ''}"]
+        if self.clipped.count:
+            lines.append(f"clipped {100 * self.clipped.last:.1f} % bright  "
+                         f"{100 * self.clipped_dark.last:.1f} % dark")
+        return lines
 
     def as_dict(self) -> dict:
         """JSON-ready summary: counts, fps, per-stage mean/p95/max in milliseconds, iterations."""
@@ -149,6 +171,10 @@ class LoopStats:
             "iterations_per_frame": self.iterations.as_dict(),
             "last_budget": self.budget,
             "residual": self.residual,
+            **({"flatten": {"brightness": self.brightness,
+                            "clipped": self.clipped.as_dict(),
+                            "clipped_dark": self.clipped_dark.as_dict()}}
+               if self.clipped.count else {}),
         }
 
     def summary(self) -> str:
@@ -165,6 +191,13 @@ class LoopStats:
             it = self.iterations
             lines.append(f"  iterations per frame: mean {it.mean:.1f}, p95 {it.percentile(95):.0f}, "
                          f"max {it.maximum:.0f}")
+        if self.clipped.count:
+            c, d = self.clipped, self.clipped_dark
+            lines.append(f"  flatten at brightness {self.brightness:.3g}: clipped share of the lit pixels "
+                         f"showing content, over {c.count} solves")
+            lines.append(f"    too bright for the wall: mean {100 * c.mean:.1f} %, max "
+                         f"{100 * c.maximum:.1f} %; darker than the room light allows: mean "
+                         f"{100 * d.mean:.1f} %, max {100 * d.maximum:.1f} %")
         return "\n".join(lines)
 
     def write_json(self, path: str | os.PathLike) -> Path:
