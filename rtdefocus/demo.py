@@ -136,7 +136,7 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
              methods: tuple[str, ...] = METHODS, images: dict[str, np.ndarray] | None = None,
              seed: int = 0, progress=None, step: StepFn | None = None,
              headroom: tuple[float, float] = (0.1, 0.9), surfaces: bool = False,
-             **procam_options) -> dict:
+             rooms: tuple[str, ...] = ("corner_ceiling",), **procam_options) -> dict:
     """Run the demo and write its pictures and table into ``out_dir``.
 
     Parameters
@@ -151,6 +151,9 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     surfaces : also the ``fabric`` preset: geometry only | defocus only | defocus + flatten |
         sharp on a white wall, per photograph, and the uniformity figures
         (:mod:`rtdefocus.demo_surfaces`; ``table.json`` gains ``surfaces``).
+    rooms : presets of more than two planes also calibrated through ``capture`` and shown
+        with the photographs (:mod:`rtdefocus.demo_rooms`; default ``corner_ceiling``, two
+        walls and the ceiling; ``()`` for none); ``table.json`` gains ``rooms``.
     **procam_options : passed to :class:`rtdefocus.sim.VirtualProCam` (e.g. smaller sizes).
 
     Returns
@@ -203,6 +206,21 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
         more, md_s, surface_figures = run_surfaces(out, photos, seed=seed, **procam_options)
         files += more
         md += "\n" + md_s
+    room_summary = None
+    if rooms:
+        from .demo_rooms import run_rooms
+
+        photos = {n: im for n, im in images.items() if n != "text"} or images
+        more, room_rows, room_summary = run_rooms(
+            out, tuple(rooms), photos, methods=methods, seed=seed, progress=progress, step=say,
+            side_by_side=side_by_side, **procam_options)
+        files += more
+        for preset, r in room_rows.items():
+            s = room_summary[preset]
+            md += (f"\n{table_markdown(r, preset)}\n*{preset}*: {s['planes']} planes found "
+                   f"({s['planes_true']} true), {s['folds']} folds, {s['captures']} captures.\n")
+            s["rows"] = [dict(asdict(x), edge_increase_input=x.edge_increase_input,
+                              edge_increase_output=x.edge_increase_output) for x in r]
     (out / "table.md").write_text(md)
     files.append(out / "table.md")
     result = {
@@ -215,6 +233,8 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     }
     if surface_figures is not None:
         result["surfaces"] = surface_figures
+    if room_summary is not None:
+        result["rooms"] = room_summary
     (out / "table.json").write_text(json.dumps(result, indent=2, default=json_default))
     files.append(out / "table.json")
     result["files"] = [str(f) for f in files]

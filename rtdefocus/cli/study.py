@@ -23,7 +23,24 @@ def _add_demo(sub):
     p.add_argument("--surfaces", action="store_true",
                    help="also the coloured, textured 'fabric' walls: geometry only | defocus only "
                         "| defocus + flatten | sharp on a white wall, and uniformity figures")
+    p.add_argument("--rooms", default="corner_ceiling", type=_room_names,
+                   help="set-ups of more than two planes also calibrated and shown, comma-"
+                        "separated (u_cubicle, corner_ceiling; default corner_ceiling; 'none' "
+                        "to skip)")
     p.set_defaults(func=cmd_demo)
+
+
+def _room_names(text: str) -> tuple[str, ...]:
+    from ..sim import PRESETS
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if names in ((), ("none",)):
+        return ()
+    bad = [n for n in names if n != "webcam" and n.removeprefix("webcam_") not in PRESETS]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown preset(s) {', '.join(bad)}; choose among "
+                                         f"{', '.join(PRESETS)} or 'none'")
+    return names
 
 
 def cmd_demo(args) -> int:
@@ -35,7 +52,8 @@ def cmd_demo(args) -> int:
     t0 = time.perf_counter()
     with _Progress(args.quiet) as progress:
         result = run_demo(args.output, preset=args.scene, methods=methods, seed=args.seed,
-                          progress=progress, step=progress.step, surfaces=args.surfaces)
+                          progress=progress, step=progress.step, surfaces=args.surfaces,
+                          rooms=args.rooms)
     print()
     print(result["markdown"])
     print(f"backend: {result['backend']}; done in {time.perf_counter() - t0:.0f} s. Files:")
