@@ -66,3 +66,16 @@ def blind_calibrate(procam, **options):
     import rtdefocus as rd
 
     return rd.calibrate(Blind(procam), **options)
+
+
+class CountingProCam:
+    """A set-up that only counts its captures (black frames): options refused before the
+    first capture leave ``n`` at 0."""
+
+    def __init__(self, projector_size=(400, 300), camera_size=(640, 480)):
+        self.projector_size, self.camera_size = projector_size, camera_size
+        self.n = 0
+
+    def capture(self, pattern):
+        self.n += 1
+        return np.zeros((self.camera_size[1], self.camera_size[0], 3), np.uint8)

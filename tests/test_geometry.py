@@ -16,7 +16,7 @@ import checkerboard
 import cv2
 import numpy as np
 import pytest
-from helpers import Blind
+from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
@@ -411,15 +411,7 @@ def test_cli_calibrate_writes_file_and_picture(tmp_path, monkeypatch, capsys):
 
 
 def test_misspelt_option_is_reported_before_any_capture():
-    class Counting:
-        projector_size, camera_size = (400, 300), (640, 480)
-        n = 0
-
-        def capture(self, pattern):
-            self.n += 1
-            return np.zeros((480, 640, 3), np.uint8)
-
-    pc = Counting()
+    pc = CountingProCam((400, 300), (640, 480))
     with pytest.raises(InputError, match="unknown calibration options \\['layuot'\\]"):
         rd.calibrate(pc, layuot="paper")
     assert pc.n == 0

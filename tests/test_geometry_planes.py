@@ -16,7 +16,7 @@ import checkerboard
 import cv2
 import numpy as np
 import pytest
-from helpers import Blind
+from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
@@ -176,15 +176,7 @@ def test_a_forced_count_the_data_contradict_is_an_error(preset, planes, match):
 
 @pytest.mark.parametrize("planes", [0, 9, "two", 2.5, True, None])
 def test_a_bad_planes_value_is_refused_before_any_capture(planes):
-    class Counting:
-        projector_size, camera_size = (320, 240), (480, 360)
-        n = 0
-
-        def capture(self, pattern):
-            self.n += 1
-            return np.zeros((360, 480, 3), np.uint8)
-
-    pc = Counting()
+    pc = CountingProCam((320, 240), (480, 360))
     with pytest.raises(InputError, match="planes must be 'auto' or a whole number 1..8"):
         rd.calibrate(pc, stages=("geometry",), planes=planes)
     assert pc.n == 0
