@@ -148,10 +148,13 @@ class Compensator:
         self._lut = np.asarray(calib.lut, dtype=np.float32)
         self._lut_inc = increasing_lut(self._lut)
         self._solver: Solver | None = None
-        # The video state: the last frame the solver worked on (projector space, uint8) and its
-        # target on the host; None until the first frame and after reset().
+        # The video state: the last frame the solver worked on (projector space, uint8; its
+        # target and solution stay on the solver's backend); None until the first frame and
+        # after reset().
         self._prev_warped: np.ndarray | None = None
-        self._prev_target: np.ndarray | None = None
+        # The last input and its warp (compensate): a repeated input (a paused video, a slide)
+        # skips the warp, which is a pure function of the input.
+        self._warp_cache: tuple[np.ndarray, np.ndarray] | None = None
         self._motion = MotionEstimator()
         self.last_info: dict = {}
         self._last_flat: dict = {}
@@ -183,7 +186,6 @@ class Compensator:
         """Forget the previous frame (the next :meth:`compensate` starts from its target): call
         it on a seek or when frames stop coming in order."""
         self._prev_warped = None
-        self._prev_target = None
 
     def compensate(self, image: np.ndarray, *, iterations: int | None = None,
                    warm_start: bool = True) -> np.ndarray:
@@ -202,13 +204,24 @@ class Compensator:
         """
         _check_budget(iterations)
         t0 = time.perf_counter()
-        warped = self.warp(image)
+        warped = self._warp_cached(image)
         t1 = time.perf_counter()
         out, info = self._compensate_warped(warped, iterations, warm_start)
         info["seconds"]["warp"] = t1 - t0
         info["seconds"]["total"] = time.perf_counter() - t0
         self.last_info = info
         return out
+
+    def _warp_cached(self, image: np.ndarray) -> np.ndarray:
+        """:meth:`warp`, or the last warp again when the input is the same as the last one."""
+        image = np.asarray(image)
+        cache = self._warp_cache
+        if (cache is not None and cache[0].shape == image.shape and cache[0].dtype == image.dtype
+                and np.array_equal(cache[0], image)):
+            return cache[1]
+        warped = self.warp(image)
+        self._warp_cache = (image.copy(), warped)
+        return warped
 
     def compensate_warped(self, warped: np.ndarray, *, iterations: int | None = None,
                           warm_start: bool = True) -> np.ndarray:
@@ -339,39 +352,31 @@ class Compensator:
         prev = self._prev_warped if warm_start else None
         if prev is not None and np.array_equal(prev, warped):
             return "still"
-        motion = state = None
+        motion = None
         if prev is not None:
             motion = self._motion.estimate(prev, warped)
-            if not motion.cut:
-                state = s.state()                  # before the new target replaces the old
+        # The previous target and solver state stay on the device: the warm start moves them
+        # there (no read-back, no host resampling).
+        s.begin_frame()
         # Decode through the same strictly increasing LUT the encoder inverts, so that a frame
         # the solve leaves alone comes back with its very codes.
         ops.decode(warped, self._lut_inc, lo, scale, s.target)
         s.target_changed()
-        target = ops.download(s.target)
         if self._surface is not None:
             # surface="flatten": T' = (b I − E) / A, solved with the residual scaled by A (the
             # solver's ops carry the scale); the motion and warm start work on T' alike.
-            inp, target = target, self._surface.target(target)
+            inp = ops.download(s.target)
+            target = self._surface.target(inp)
             ops.upload(target, s.target)
             above, below = self._surface.clipped(inp, target)
             self._last_flat = {"surface": "flatten", "brightness": self._surface.brightness,
                                "clipped": above, "clipped_dark": below}
-        prev_target = self._prev_target
         self._prev_warped = warped.copy()
-        self._prev_target = target
-        if state is None:
+        if motion is None or motion.cut:
             s.start_from_target()
             return "cut" if motion is not None else "cold"
-        P, P_prev, G_prev, momentum = state
-        s.set_start(target + motion.carry(P - prev_target))
-        kept, _, _ = s.keep_better_than_cold()
-        if not kept:
-            return "cold"
-        if P_prev is not None:
-            s.carry_momentum(target + motion.carry(P_prev - prev_target), motion.carry(G_prev),
-                             motion.valid, momentum)
-        return "motion"
+        ops.set_motion(motion.map_xy, motion.valid)
+        return "motion" if s.start_from_motion() else "cold"
 
 
 def _check_args(calib, *, method, solver, backend, iterations, tol, weights, warp_backend,

@@ -22,7 +22,7 @@ from .blur import (
 from .lut import encode_lut, inverse_lut_tables
 from .metric import Metric, metric_field
 
-__all__ = ["NumpyOps", "scale_preconditioner"]
+__all__ = ["NumpyOps", "carry_field", "scale_preconditioner"]
 
 
 def _vdot(a: np.ndarray, b: np.ndarray) -> float:
@@ -49,6 +49,53 @@ def scale_preconditioner(scale, psfs, idx, wts) -> np.ndarray:
     f1 = blur_forward_filter2d(np.ones(scale.shape, np.float32), psfs, idx, wts)
     w = blur_adjoint_filter2d((s2 * f1).astype(np.float32), psfs, idx, wts).astype(np.float64)
     return (1.0 / np.maximum(w, s2.min())).astype(np.float32)
+
+
+def carry_field(src, map_xy, valid, fallback, base_prev=None, base_new=None,
+                clamp: bool = False) -> np.ndarray:
+    """A field of the previous frame moved along the motion (the warm start of a video).
+
+    ``out = base_new + B(src − base_prev)`` where ``valid``, else ``fallback``; clamped to
+    [0, 1] when ``clamp``. ``B`` samples bilinearly at ``map_xy`` (the previous frame's pixel
+    that each pixel came from), taps outside the frame counting as 0; ``map_xy`` None is the
+    identity (no resampling). Without bases (None) the field itself is moved (``base`` 0). The
+    twin of ``kernels/solver.cl`` ``carry`` (exact bilinear weights in float32, where
+    ``cv2.remap`` quantises them to 1/32).
+
+    Parameters
+    ----------
+    src, fallback, base_prev, base_new : (C, H, W) float32
+    map_xy : (H, W, 2) float32 source coordinates (x, y), or None
+    valid : (H, W) bool
+    clamp : bool
+
+    Returns
+    -------
+    (C, H, W) float32
+    """
+    src = np.asarray(src, np.float32)
+    diff = src if base_prev is None else src - np.asarray(base_prev, np.float32)
+    c, h, w = diff.shape
+    if map_xy is None:
+        moved = diff.copy()
+    else:
+        mx, my = map_xy[..., 0].astype(np.float32), map_xy[..., 1].astype(np.float32)
+        x0, y0 = np.floor(mx), np.floor(my)
+        fx, fy = mx - x0, my - y0
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        moved = np.zeros_like(diff)
+        for dy, wy in ((0, 1.0 - fy), (1, fy)):
+            for dx, wx in ((0, 1.0 - fx), (1, fx)):
+                xs, ys = x0 + dx, y0 + dy
+                inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+                tap = diff[:, np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]
+                moved += np.where(inside, (wy * wx).astype(np.float32), np.float32(0)) * tap
+    if base_new is not None:
+        moved += np.asarray(base_new, np.float32)
+    out = np.where(np.asarray(valid, bool)[None], moved, np.asarray(fallback, np.float32))
+    if clamp:
+        np.clip(out, 0.0, 1.0, out=out)
+    return out.astype(np.float32)
 
 
 class NumpyOps:
@@ -181,6 +228,18 @@ class NumpyOps:
             return float("nan"), float("nan")
         d = P_out - P
         return _vdot(d, d), _vdot(P_out, P_out)
+
+    def set_motion(self, map_xy, valid) -> None:
+        """The motion :meth:`carry` moves fields along: ``(H, W, 2)`` float32 source
+        coordinates (None: the picture did not move) and the ``(H, W)`` bool mask of valid
+        pixels."""
+        self._motion = (None if map_xy is None else np.asarray(map_xy, np.float32),
+                        np.asarray(valid, bool))
+
+    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False) -> None:
+        """dst = :func:`carry_field` of ``src`` along the motion of :meth:`set_motion`."""
+        map_xy, valid = self._motion
+        dst[...] = carry_field(src, map_xy, valid, fallback, base_prev, base_new, clamp)
 
     def decode(self, codes, lut, lo, scale, dst) -> None:
         lut = np.asarray(lut, dtype=np.float32)
