@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..reference.blur import check_field
 from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
-from ..reference.ops import scale_preconditioner
+from ..reference.ops import check_adjoint, scale_preconditioner
 from .blur import ClBlur
 
 log = logging.getLogger(__name__)
@@ -57,6 +57,8 @@ class ClSolveOps:
         when the compensation flattens it): d = d(S (F P − target)). None: no scale. With a
         scale the steps are preconditioned (``solver.cl`` PRECOND, the host array of
         :func:`~rtdefocus.reference.ops.scale_preconditioner`, as in the NumPy twin).
+    adjoint : "exact" | "fast"
+        How :meth:`gradient` forms FISTA's ``Fᵀ q`` (:data:`rtdefocus.reference.ops.ADJOINTS`).
 
     Attributes
     ----------
@@ -74,7 +76,7 @@ class ClSolveOps:
     backend = "opencl"
 
     def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None,
-                 scale=None):
+                 scale=None, adjoint: str = "exact"):
         # pyopencl on first use, not at import: NumPy-only runs skip its start-up cost.
         import pyopencl as cl
         import pyopencl.array as cla
@@ -84,6 +86,14 @@ class ClSolveOps:
         self.queue = runtime.queue
         self.metric = metric
         self.blur = ClBlur(runtime, psfs, idx, wts, channels=3, variant=blur_variant)
+        check_adjoint(adjoint)
+        self.adjoint_form = adjoint
+        # adjoint="fast": FISTA's gradient is the forward kernel with the PSFs flipped
+        # (rtdefocus.reference.ops.ADJOINTS); its own ClBlur, the same field otherwise.
+        self._gblur = (self.blur if adjoint == "exact" else
+                       ClBlur(runtime, np.ascontiguousarray(np.asarray(psfs)[:, ::-1, ::-1]), idx,
+                              wts, channels=3, variant=blur_variant))
+        self._grad = self._gblur.adjoint if adjoint == "exact" else self._gblur.forward
         self.psfs = self.blur.psfs
         self.shape = self.blur.shape
         _, h, w = self.shape
@@ -197,6 +207,11 @@ class ClSolveOps:
 
     def adjoint(self, src, dst) -> None:
         self.blur.adjoint(src, dst)
+
+    def gradient(self, src, dst) -> None:
+        """FISTA's ``Fᵀ src``: the exact adjoint, or the flipped-PSF forward (``adjoint="fast"``,
+        :data:`rtdefocus.reference.ops.ADJOINTS`; twin ``NumpyOps.gradient``)."""
+        self._grad(src, dst)
 
     # ------------------------------------------------------------------ metric
     def metric_residual(self, fp, target, q) -> float:

@@ -30,6 +30,7 @@ from ..gl.warp import warp_image
 from ..reference.blur import trim_psfs
 from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
 from ..reference.metric import DEFAULT_WEIGHTS, Metric
+from ..reference.ops import check_adjoint
 from .backends import make_solve_ops
 from .motion import MotionEstimator
 from .solvers import SOLVERS, SolveInfo, Solver
@@ -97,6 +98,12 @@ class Compensator:
         Cut each kernel to the smallest window holding this share of its energy (e.g. 0.999)
         before solving: fewer taps per blur, a slightly different operator. Default: the
         kernels as calibrated (only their all-zero borders are skipped).
+    adjoint : "fast" | "exact"
+        How FISTA forms its gradient ``Fᵀ q`` (:data:`rtdefocus.reference.ops.ADJOINTS`):
+        ``"fast"`` (default) blends the flipped PSFs at the output pixel, one forward blur's
+        cost; ``"exact"`` is the true transpose (~2x the cost on a CPU device). Steps are
+        accepted on the exact distance either way; on the cubicle the camera-view gain after
+        2, 8 and 40 iterations differed by at most 0.01 dB.
 
     Attributes
     ----------
@@ -115,12 +122,14 @@ class Compensator:
                  headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
                  wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None,
                  surface: str = "keep", brightness: str | float = "auto",
-                 psf_energy: float | None = None):
+                 psf_energy: float | None = None, adjoint: str = "fast"):
         _check_args(calib, method=method, solver=solver, backend=backend,
                     iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
                     wiener_nsr=wiener_nsr, blur_variant=blur_variant)
         if surface not in SURFACES:
             raise InputError(f"surface must be one of {SURFACES}; got {surface!r}")
+        check_adjoint(adjoint)
+        self.adjoint = adjoint
         if psf_energy is not None and not 0.9 <= float(psf_energy) <= 1.0:
             raise InputError(f"psf_energy must be in [0.9, 1] (the share of each kernel's energy "
                              f"kept, e.g. 0.999) or None; got {psf_energy!r}")
@@ -166,7 +175,8 @@ class Compensator:
             # taps per blur; measured kernels carry a faint noisy halo that costs time only).
             psfs = calib.psfs if psf_energy is None else trim_psfs(calib.psfs, float(psf_energy))
             ops = make_solve_ops(self.backend, psfs, calib.pix_idx, calib.pix_wts, metric,
-                                 blur="filter2d", blur_variant=blur_variant, scale=scale)
+                                 blur="filter2d", blur_variant=blur_variant, scale=scale,
+                                 adjoint=adjoint)
             self._solver = Solver(ops, solver=solver)
 
     # ------------------------------------------------------------------ public

@@ -287,7 +287,7 @@ class Solver:
         ops.carry(self._P_prev, self.P, self._s, base_prev=self.target_prev,
                   base_new=self.target, clamp=True)
         self._P_prev, self._s = self._s, self._P_prev
-        ops.adjoint(self._q, self._G)               # the first iteration's, done here
+        ops.gradient(self._q, self._G)              # the first iteration's, done here
         self._grad_ready = True
         ops.carry(self._G_prev, self._G, self._fs)
         self._G_prev, self._fs = self._fs, self._G_prev
@@ -367,7 +367,7 @@ class Solver:
         have_grad = self._grad_ready      # G holds F^T q at the current P
         for _ in range(iterations):
             if not have_grad:
-                ops.adjoint(self._q, self._G)
+                ops.gradient(self._q, self._G)
             # By linearity the gradient at y = P + β (P − P_prev) is G + β (G − G_prev): one
             # adjoint per iteration, at the accepted iterate.
             # The step sizes are only needed for the tol test: skip that host round trip otherwise.
