@@ -12,8 +12,9 @@ Sections (``--sections``, comma-separated; default ``cost``):
            :data:`PAN_PX` input px per frame: every frame new). Per tree and kind: the time per
            iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (as issue 10 measured
            them; a moving frame's t(0) includes the first iteration's gradient, computed with
-           the warm start), per stage, from the medians and from the minima (the load of a
-           shared machine only adds time), and the ratios before / after.
+           the warm start), per stage, from the medians and from the minima of the wall time
+           (the load of a shared machine only adds time) and from the median CPU time of the
+           worker process (all its threads), and the ratios before / after.
 ``eval``   :func:`rtdefocus.eval_video.run_video_eval` (``--quick`` for the small clip).
 
 Timings are medians of ``--repeats`` frames after ``--warmup`` (>= 3), every frame synchronised
@@ -30,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import statistics
 import sys
 import time
@@ -82,17 +84,19 @@ for line in sys.stdin:
         comps[key], count[key] = Compensator(calib, backend="opencl"), 0
     img = frame(kind, count[key])
     count[key] += 1
-    t0 = time.perf_counter()
+    c0, t0 = time.process_time(), time.perf_counter()
     comps[key].compensate(img, iterations=key[1], warm_start=True)
-    dt = time.perf_counter() - t0
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
     info = comps[key].last_info
-    print(json.dumps({"s": dt, "stages": info.get("seconds", {}), "start": info.get("start")}),
-          flush=True)
+    print(json.dumps({"s": dt, "cpu_s": cpu, "stages": info.get("seconds", {}),
+                      "start": info.get("start")}), flush=True)
 """
 
 
 class _Worker:
-    """A subprocess running :data:`WORKER` on one source tree."""
+    """A subprocess running :data:`WORKER` on one source tree, stopped (SIGSTOP) between its
+    frames: an idle OpenCL runtime's worker threads would otherwise take CPU from the other
+    tree's frames (measured: the per-iteration time doubled with both processes running)."""
 
     def __init__(self, tree: Path, size):
         import subprocess
@@ -104,13 +108,18 @@ class _Worker:
         if "ready" not in ready:
             raise RuntimeError(f"the benchmark worker on {tree} did not start")
         self.module = ready["ready"]
+        self.proc.send_signal(signal.SIGSTOP)
 
     def frame(self, kind: str, n: int) -> dict:
+        self.proc.send_signal(signal.SIGCONT)
         self.proc.stdin.write(f"{kind} {n}\n")
         self.proc.stdin.flush()
-        return json.loads(self.proc.stdout.readline())
+        reply = json.loads(self.proc.stdout.readline())
+        self.proc.send_signal(signal.SIGSTOP)
+        return reply
 
     def close(self) -> None:
+        self.proc.send_signal(signal.SIGCONT)
         self.proc.stdin.close()
         self.proc.wait(timeout=60)
 
@@ -149,12 +158,14 @@ def section_cost(args, out: dict) -> None:
     print("  trees: " + ", ".join(f"{v} {w.module}" for v, w in workers.items()))
     keys = [(v, k, n) for v in workers for k in KINDS for n in BUDGETS]
     times = {key: [] for key in keys}
+    cpu = {key: [] for key in keys}
     stages = {key: {} for key in keys}
     for rnd in range(args.warmup + args.repeats):
         for v, k, n in keys:
             r = workers[v].frame(k, n)
             if rnd >= args.warmup:
                 times[v, k, n].append(r["s"])
+                cpu[v, k, n].append(r["cpu_s"])
                 for st, x in r["stages"].items():
                     stages[v, k, n].setdefault(st, []).append(x)
     for w in workers.values():
@@ -177,6 +188,11 @@ def section_cost(args, out: dict) -> None:
             m_lo, m_hi = min(times[v, k, lo]), min(times[v, k, hi])
             row["per_iteration_min_ms"] = 1e3 * (m_hi - m_lo) / (hi - lo)
             row["fixed_min_ms"] = 1e3 * m_lo - lo * row["per_iteration_min_ms"]
+            # and in CPU time (all the process's threads: host, OpenCL and GL workers): the
+            # work a frame costs, whatever else runs on the machine
+            c_lo, c_hi = statistics.median(cpu[v, k, lo]), statistics.median(cpu[v, k, hi])
+            row["per_iteration_cpu_ms"] = 1e3 * (c_hi - c_lo) / (hi - lo)
+            row["fixed_cpu_ms"] = 1e3 * c_lo - lo * row["per_iteration_cpu_ms"]
             rows.append(row)
             print(f"  {v:6s} {k:6s} fixed {row['fixed_ms']:7.1f} ms  per iteration "
                   f"{row['per_iteration_ms']:6.1f} ms  ({lo} it: {row['frame_ms'][lo]:.1f} ms: "
@@ -189,7 +205,7 @@ def section_cost(args, out: dict) -> None:
     by = {(r["variant"], r["frames"]): r for r in rows}
     for k in KINDS:
         a, b = by[("after", k)], by.get(("before", k))
-        for stat, sfx in (("medians", ""), ("minima", "_min")):
+        for stat, sfx in (("medians", ""), ("minima", "_min"), ("CPU time", "_cpu")):
             fa, pa = a[f"fixed{sfx}_ms"], a[f"per_iteration{sfx}_ms"]
             if b is None:
                 print(f"| {k} | {stat} | - | {fa:.1f} ms | - | - | {pa:.1f} ms | - |")
