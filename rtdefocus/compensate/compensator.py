@@ -224,7 +224,8 @@ class Compensator:
 
     def _warp_cached(self, image: np.ndarray) -> np.ndarray:
         """:meth:`warp`, or the last warp again when the input is the same as the last one."""
-        image = np.asarray(image)
+        if not isinstance(image, np.ndarray):
+            return self.warp(image)            # (warp names what is wrong with it)
         cache = self._warp_cache
         if (cache is not None and cache[0].shape == image.shape and cache[0].dtype == image.dtype
                 and np.array_equal(cache[0], image)):
