@@ -243,3 +243,59 @@ void encode_lut(__global const float *restrict P, __global const float *restrict
         for (int k = 0; k < 3 * (npix - i0); ++k) dst[3 * (size_t)i0 + k] = out[k];
     }
 }
+
+/* dst = base_new + B(src - base_prev) where valid, else fallback; clamped to [0, 1] with CARRY_CLAMP.
+ * B samples the previous frame bilinearly at map[y, x] = (x', y'), taps outside the frame count
+ * as 0; CARRY_IDENTITY: no resampling (B = the field itself); without CARRY_BASE the bases are
+ * 0 (not read). The warm start of a video moves the previous correction, FISTA's previous
+ * iterate and its gradient along the motion without a trip to the host. NumPy twin:
+ * rtdefocus.reference.ops.carry_field. src, base_prev, base_new, fallback, dst float32
+ * (3, H, W); map float2 (H, W); valid uchar (H, W); one work-item per pixel (global size
+ * ceil(H W / WG) * WG). dst may be base_new or fallback, never src or base_prev. */
+#define CARRY_BASE 1
+#define CARRY_CLAMP 2
+#define CARRY_IDENTITY 4
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void carry(__global const float *restrict src, __global const float *restrict base_prev,
+           __global const float *base_new, __global const float *fallback,
+           __global const float2 *restrict map, __global const uchar *restrict valid,
+           __global float *dst, const int flags, const int H, const int W)
+{
+    const int i = get_global_id(0);
+    const int npix = H * W;
+    if (i >= npix) return;
+    const bool base = flags & CARRY_BASE;
+    float out[3];
+    if (!valid[i]) {
+        for (int c = 0; c < 3; ++c) out[c] = fallback[(size_t)c * npix + i];
+    } else if (flags & CARRY_IDENTITY) {
+        for (int c = 0; c < 3; ++c) {
+            const size_t j = (size_t)c * npix + i;
+            out[c] = base ? base_new[j] + (src[j] - base_prev[j]) : src[j];
+        }
+    } else {
+        const float2 m = map[i];
+        const float fx0 = floor(m.x), fy0 = floor(m.y);
+        const float fx = m.x - fx0, fy = m.y - fy0;
+        const int x0 = (int)fx0, y0 = (int)fy0;
+        for (int c = 0; c < 3; ++c) out[c] = 0.0f;
+        for (int dy = 0; dy < 2; ++dy) {
+            const int ys = y0 + dy;
+            if (ys < 0 || ys >= H) continue;
+            const float wy = dy ? fy : 1.0f - fy;
+            for (int dx = 0; dx < 2; ++dx) {
+                const int xs = x0 + dx;
+                if (xs < 0 || xs >= W) continue;
+                const float wt = wy * (dx ? fx : 1.0f - fx);
+                for (int c = 0; c < 3; ++c) {
+                    const size_t j = (size_t)c * npix + IDX(ys, xs, W);
+                    out[c] += wt * (base ? src[j] - base_prev[j] : src[j]);
+                }
+            }
+        }
+        if (base)
+            for (int c = 0; c < 3; ++c) out[c] += base_new[(size_t)c * npix + i];
+    }
+    for (int c = 0; c < 3; ++c)
+        dst[(size_t)c * npix + i] = (flags & CARRY_CLAMP) ? clamp(out[c], 0.0f, 1.0f) : out[c];
+}

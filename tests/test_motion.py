@@ -201,3 +201,91 @@ def test_psf_energy_trims_the_kernels_and_keeps_the_result(calib, pictures):
     assert np.abs(a - b).mean() < 1.0, np.abs(a - b).mean()
     with pytest.raises(rd.InputError, match="psf_energy"):
         rd.Compensator(calib, psf_energy=0.5)
+
+
+# --------------------------------------------------------------------------- carry on the device
+def _motion_case(seed=0, h=37, w=53):
+    """A field, a map reaching past the frame's edges, a valid mask, bases and a fallback."""
+    rng = np.random.default_rng(seed)
+    f = lambda: rng.random((3, h, w), np.float32) * 1.4 - 0.2      # noqa: E731 (outside [0, 1])
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    map_xy = np.stack([gx + 3.3 + rng.normal(0, 1.5, (h, w)),
+                       gy - 2.6 + rng.normal(0, 1.5, (h, w))], -1).astype(np.float32)
+    valid = rng.random((h, w)) > 0.2
+    return f(), f(), f(), f(), map_xy, valid
+
+
+def test_carry_field_is_a_bilinear_remap():
+    """The NumPy twin is cv2.remap (constant 0 border) up to cv2's 1/32 weight steps, and the
+    cold fallback where the motion is invalid."""
+    from rtdefocus.reference.ops import carry_field
+
+    src, bp, bn, fb, map_xy, valid = _motion_case()
+    out = carry_field(src, map_xy, valid, fb, bp, bn, clamp=False)
+    want = np.stack([cv2.remap(c, map_xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                               borderValue=0.0) for c in src - bp]) + bn
+    assert np.abs(out - want)[:, valid].max() < 0.05
+    assert np.array_equal(out[:, ~valid], fb[:, ~valid])
+    clamped = carry_field(src, map_xy, valid, fb, bp, bn, clamp=True)
+    assert np.array_equal(clamped, np.clip(out, 0, 1))
+    assert np.array_equal(carry_field(src, None, valid, fb)[:, valid], src[:, valid])
+
+
+@pytest.mark.parametrize("bases,clamp,still", [(True, True, False), (False, False, False),
+                                               (True, True, True)])
+def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still):
+    """``kernels/solver.cl`` carry against its twin: the warm start's fields moved on the device."""
+    from rtdefocus.cl.solve import ClSolveOps
+    from rtdefocus.reference.metric import Metric
+    from rtdefocus.reference.ops import NumpyOps
+
+    src, bp, bn, fb, map_xy, valid = _motion_case(seed=1)
+    h, w = valid.shape
+    psfs = np.zeros((1, 3, 3), np.float32)
+    psfs[0, 1, 1] = 1.0
+    idx, wts = np.zeros((h, w, 4), np.int32), np.zeros((h, w, 4), np.float32)
+    wts[..., 0] = 1.0
+    metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
+    outs = []
+    for ops in (NumpyOps(psfs, idx, wts, metric), ClSolveOps(cl_runtime, psfs, idx, wts, metric)):
+        ops.set_motion(None if still else map_xy, valid)
+        arrs = [ops.new() for _ in range(5)]
+        for a, host in zip(arrs[:4], (src, bp, bn, fb), strict=True):
+            ops.upload(host, a)
+        s_, bp_, bn_, fb_, dst = arrs
+        ops.carry(s_, fb_, dst, base_prev=bp_ if bases else None,
+                  base_new=bn_ if bases else None, clamp=clamp)
+        outs.append(ops.download(dst))
+    np.testing.assert_allclose(outs[1], outs[0], atol=2e-6)
+    assert np.array_equal(outs[1][:, ~valid], np.clip(fb, 0, 1)[:, ~valid] if clamp
+                          else fb[:, ~valid])
+
+
+def test_a_repeated_input_reuses_its_warp_and_an_edited_one_does_not(calib, pictures):
+    """A paused video skips the warp; the cache holds a copy, so an input edited in place is
+    warped again."""
+    a, b = pictures
+    comp = rd.Compensator(calib, backend="numpy", method="none")
+    img = cv2.resize(a, (320, 240))
+    first = comp.compensate(img)
+    again = comp.compensate(img.copy())
+    assert np.array_equal(first, again)
+    img[...] = cv2.resize(b, (320, 240))
+    edited = comp.compensate(img)
+    assert np.array_equal(edited, rd.Compensator(calib, backend="numpy", method="none").warp(img))
+    assert not np.array_equal(edited, first)
+
+
+def test_fast_adjoint_ends_where_the_exact_one_does(calib, pictures):
+    """FISTA's gradient through the flipped-PSF forward (the default) reaches the exact
+    adjoint's distance within 1 % after 10 iterations; a bad name is refused."""
+    frame = clip(pictures)[0][0]
+    d = {}
+    for adjoint in ("fast", "exact"):
+        comp = rd.Compensator(calib, backend="numpy", adjoint=adjoint)
+        comp.compensate_warped(frame, iterations=10, warm_start=False)
+        d[adjoint] = comp.last_info["distances"]
+    assert d["fast"][-1] < d["fast"][0] * 0.9                     # it converges
+    assert abs(d["fast"][-1] - d["exact"][-1]) < 0.01 * d["exact"][-1], d
+    with pytest.raises(rd.InputError, match="adjoint"):
+        rd.Compensator(calib, adjoint="approximate")

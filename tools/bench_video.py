@@ -3,15 +3,18 @@
 
 Sections (``--sections``, comma-separated; default ``cost``):
 
-``cost``   ``Compensator.compensate()`` on a photograph at the projector size (default 800x600)
-           with the virtual cubicle's oracle kernels, per variant, all in this one run:
-           ``full-window`` every tap of the k x k PSF window (the blur before issue 10),
-           ``support`` only the taps inside each PSF group's exact support (the same operator;
-           the default now), ``trim-999`` the PSFs cut to 99.9 % of their energy
-           (:func:`rtdefocus.reference.blur.trim_psfs`). Per variant: the fixed part (median
-           frame time at 0 iterations, per stage) and the time per iteration ((t(8) - t(0)) / 8,
-           medians), the ratio to ``full-window``, and for trimming the camera-view PSNR change
-           against the untrimmed kernels at the same budget.
+``cost``   ``Compensator.compensate()`` at the projector size (default 800x600) with the
+           virtual cubicle's oracle kernels, *before* and *after* in this one run: the
+           ``--baseline`` revision (default :data:`BASELINE_REV`, the code before issue 10's cost
+           work; extracted with ``git archive`` beside the results) and this tree, each in its
+           own process, frames interleaved round by round. Two kinds of frames: ``still`` (the
+           same photograph again: a paused video, a slide) and ``moving`` (a pan of
+           :data:`PAN_PX` input px per frame: every frame new). Per tree and kind: the time per
+           iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (as issue 10 measured
+           them; a moving frame's t(0) includes the first iteration's gradient, computed with
+           the warm start), per stage, from the medians and from the minima of the wall time
+           (the load of a shared machine only adds time) and from the median CPU time of the
+           worker process (all its threads), and the ratios before / after.
 ``eval``   :func:`rtdefocus.eval_video.run_video_eval` (``--quick`` for the small clip).
 
 Timings are medians of ``--repeats`` frames after ``--warmup`` (>= 3), every frame synchronised
@@ -28,10 +31,10 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import statistics
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,91 +45,176 @@ sys.path.insert(0, str(REPO / "tools"))
 
 from bench import git_commit, machine_info, parse_size  # noqa: E402
 
-VARIANTS = ("full-window", "support", "trim-999")
-ITERS = 8
+#: The code before issue 10's cost work (the naive warm start, the blur over the whole k x k
+#: window): the "before" of the cost section, run from a ``git archive`` of this revision.
+BASELINE_REV = "834bc2e"
+#: Pan of the moving frames, input pixels per frame (~9 projector px at 800x600).
+PAN_PX = 6
+KINDS = ("still", "moving")
+BUDGETS = (0, 8)
+
+#: One tree's side of the cost section, run in its own process (``python -c WORKER TREE W H``):
+#: per request line "KIND N" it shows the next frame of that kind (a still photograph, or the
+#: next step of a pan) to a Compensator kept for (KIND, N) and answers the seconds of
+#: ``compensate(frame, iterations=N, warm_start=True)`` as one JSON line.
+WORKER = r"""
+import json, sys, time
+tree, w, h, pan = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+sys.path.insert(0, tree)
+import cv2, numpy as np
+import rtdefocus
+from rtdefocus import sim
+from rtdefocus.compensate import Compensator
+from rtdefocus.samples import photographs
+from rtdefocus.sim import oracle_calibration
+procam = sim.VirtualProCam("cubicle", projector_size=(w, h), camera_size=(int(w * 1.6), int(h * 1.6)))
+calib = oracle_calibration(procam)
+photo = photographs()["astronaut"]
+comps, count = {}, {}
+def frame(kind, i):
+    if kind == "still":
+        return photo
+    m = np.float32([[1, 0, -pan * i], [0, 1, 0]])
+    return cv2.warpAffine(photo, m, photo.shape[1::-1], borderMode=cv2.BORDER_REFLECT)
+print(json.dumps({"ready": rtdefocus.__file__}), flush=True)
+for line in sys.stdin:
+    kind, n = line.split()
+    key = (kind, int(n))
+    if key not in comps:
+        comps[key], count[key] = Compensator(calib, backend="opencl"), 0
+    img = frame(kind, count[key])
+    count[key] += 1
+    c0, t0 = time.process_time(), time.perf_counter()
+    comps[key].compensate(img, iterations=key[1], warm_start=True)
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+    info = comps[key].last_info
+    print(json.dumps({"s": dt, "cpu_s": cpu, "stages": info.get("seconds", {}),
+                      "start": info.get("start")}), flush=True)
+"""
 
 
-def _time_frame(comp, image, iterations: int, stages: dict) -> float:
-    t0 = time.perf_counter()
-    comp.compensate(image, iterations=iterations, warm_start=True)
-    dt = time.perf_counter() - t0
-    for k, v in comp.last_info["seconds"].items():
-        stages.setdefault(k, []).append(v)
-    return dt
+class _Worker:
+    """A subprocess running :data:`WORKER` on one source tree, stopped (SIGSTOP) between its
+    frames: an idle OpenCL runtime's worker threads would otherwise take CPU from the other
+    tree's frames (measured: the per-iteration time doubled with both processes running)."""
+
+    def __init__(self, tree: Path, size):
+        import subprocess
+
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", WORKER, str(tree), str(size[0]), str(size[1]), str(PAN_PX)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=str(tree))
+        ready = json.loads(self.proc.stdout.readline() or "{}")
+        if "ready" not in ready:
+            raise RuntimeError(f"the benchmark worker on {tree} did not start")
+        self.module = ready["ready"]
+        self.proc.send_signal(signal.SIGSTOP)
+
+    def frame(self, kind: str, n: int) -> dict:
+        self.proc.send_signal(signal.SIGCONT)
+        self.proc.stdin.write(f"{kind} {n}\n")
+        self.proc.stdin.flush()
+        reply = json.loads(self.proc.stdout.readline())
+        self.proc.send_signal(signal.SIGSTOP)
+        return reply
+
+    def close(self) -> None:
+        self.proc.send_signal(signal.SIGCONT)
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+def _baseline_tree(rev: str, dest: Path) -> Path | None:
+    """``git archive`` of ``rev`` under ``dest`` with its kernels inside the package (so that
+    ``rtdefocus.kernels`` is that revision's, not this tree's editable install); None without
+    git history (e.g. a copied tree)."""
+    import shutil
+    import subprocess
+
+    tree = dest / f"baseline-{rev}"
+    if (tree / "rtdefocus" / "kernels").is_dir():
+        return tree
+    tree.mkdir(parents=True, exist_ok=True)
+    try:
+        data = subprocess.run(["git", "archive", rev], cwd=REPO, capture_output=True,
+                              check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=data, check=True)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"  no baseline: git archive {rev} failed ({exc})")
+        return None
+    shutil.copytree(tree / "kernels", tree / "rtdefocus" / "kernels")
+    return tree
 
 
 def section_cost(args, out: dict) -> None:
-    from rtdefocus import sim
-    from rtdefocus.cl.blur import ClBlur
-    from rtdefocus.compensate import Compensator
-    from rtdefocus.reference.blur import psf_support, trim_psfs
-    from rtdefocus.samples import photographs
-    from rtdefocus.scores import camera_view, psnr, rect_mask
-    from rtdefocus.sim import oracle_calibration
-
-    procam = sim.VirtualProCam("cubicle", projector_size=args.size,
-                               camera_size=(int(args.size[0] * 1.6), int(args.size[1] * 1.6)))
-    calib = oracle_calibration(procam)
-    image = photographs()["astronaut"]
-    psfs = calib.psfs
-    print(f"oracle cubicle kernels: {len(psfs)} PSFs of {psfs.shape[1]}x{psfs.shape[2]}, "
-          f"exact support half-widths {psf_support(psfs).tolist()}, at 99.9 % energy "
-          f"{psf_support(psfs, 0.999).tolist()}")
-    comps, frames = {}, {}
-    for variant in VARIANTS:
-        c = calib
-        ClBlur.use_support = variant != "full-window"
-        if variant == "trim-999":
-            c = replace(calib, psfs=trim_psfs(calib.psfs, 0.999))
-        comps[variant] = Compensator(c, backend="opencl")
-        ClBlur.use_support = True
-    # Interleaved: every round times each variant in turn, so that the load of a shared
-    # machine falls on all of them alike; medians over the rounds.
-    times = {(v, n): [] for v in VARIANTS for n in (0, ITERS)}
-    stages = {(v, n): {} for v in VARIANTS for n in (0, ITERS)}
+    """Before (``--baseline`` revision) and after (this tree), each in its own process, frames
+    interleaved round by round so that a shared machine's load falls on both alike."""
+    trees = {"after": REPO}
+    if args.baseline:
+        base = _baseline_tree(args.baseline, args.out)
+        if base is not None:
+            trees = {"before": base, **trees}
+    workers = {v: _Worker(t, args.size) for v, t in trees.items()}
+    print("  trees: " + ", ".join(f"{v} {w.module}" for v, w in workers.items()))
+    keys = [(v, k, n) for v in workers for k in KINDS for n in BUDGETS]
+    times = {key: [] for key in keys}
+    cpu = {key: [] for key in keys}
+    stages = {key: {} for key in keys}
     for rnd in range(args.warmup + args.repeats):
-        for v in VARIANTS:
-            for n in (0, ITERS):
-                dt = _time_frame(comps[v], image, n, stages[v, n] if rnd >= args.warmup else {})
-                if rnd >= args.warmup:
-                    times[v, n].append(dt)
+        for v, k, n in keys:
+            r = workers[v].frame(k, n)
+            if rnd >= args.warmup:
+                times[v, k, n].append(r["s"])
+                cpu[v, k, n].append(r["cpu_s"])
+                for st, x in r["stages"].items():
+                    stages[v, k, n].setdefault(st, []).append(x)
+    for w in workers.values():
+        w.close()
     rows = []
-    for v in VARIANTS:
-        comp = comps[v]
-        fixed = 1e3 * statistics.median(times[v, 0])
-        per_it = 1e3 * (statistics.median(times[v, ITERS]) - statistics.median(times[v, 0])) / ITERS
-        st0 = {k: 1e3 * statistics.median(x) for k, x in stages[v, 0].items()}
-        stn = {k: 1e3 * statistics.median(x) for k, x in stages[v, ITERS].items()}
-        comp.reset()
-        frames[v] = comp.compensate(image, iterations=ITERS, warm_start=False)
-        row = {"variant": v, "size": f"{args.size[0]}x{args.size[1]}", "fixed_ms": fixed,
-               "per_iteration_ms": per_it, "stages_0it_ms": st0, "stages_8it_ms": stn,
-               "frame_8it_ms": 1e3 * statistics.median(times[v, ITERS]),
-               "repeats": args.repeats}
-        rows.append(row)
-        print(f"  {v:12s} fixed {fixed:7.1f} ms  per iteration {per_it:7.1f} ms  "
-              f"(8 it: {row['frame_8it_ms']:.1f} ms)  stages at 0 it: "
-              + ", ".join(f"{k} {x:.1f}" for k, x in st0.items()), flush=True)
-    base = rows[0]
-    for r in rows:
-        r["fixed_ratio"] = base["fixed_ms"] / r["fixed_ms"]
-        r["per_iteration_ratio"] = base["per_iteration_ms"] / max(r["per_iteration_ms"], 1e-9)
-    # what trimming costs in quality: camera views at the same budget (8 cold iterations)
-    rect = calib.display_rect((image.shape[1], image.shape[0]))
-    wc, hc = procam.camera_size
-    mask = rect_mask(rect, (hc, wc))
-    warped = Compensator(calib, method="none").warp(image)
-    ref = camera_view(procam, calib, warped, sharp=True)
-    geo = psnr(camera_view(procam, calib, warped), ref, mask)
-    for r in rows:
-        p = psnr(camera_view(procam, calib, frames[r["variant"]]), ref, mask)
-        r["psnr_8it_gain_db"] = p - geo
-    print("\n| variant | fixed ms | per iteration ms | x fixed | x per iteration | "
-          "gain at 8 it (dB) |\n|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['variant']} | {r['fixed_ms']:.1f} | {r['per_iteration_ms']:.1f} | "
-              f"{r['fixed_ratio']:.2f} | {r['per_iteration_ratio']:.2f} | "
-              f"{r['psnr_8it_gain_db']:+.2f} |")
+    lo, hi = BUDGETS
+    for v in workers:
+        for k in KINDS:
+            t_lo = statistics.median(times[v, k, lo])
+            t_hi = statistics.median(times[v, k, hi])
+            per_it = (t_hi - t_lo) / (hi - lo)
+            row = {"variant": v, "tree": str(trees[v]), "frames": k,
+                   "size": f"{args.size[0]}x{args.size[1]}", "fixed_ms": 1e3 * (t_lo - lo * per_it),
+                   "per_iteration_ms": 1e3 * per_it, "frame_ms": {n: 1e3 * statistics.median(
+                       times[v, k, n]) for n in BUDGETS},
+                   "stages_ms": {n: {st: 1e3 * statistics.median(x)
+                                     for st, x in stages[v, k, n].items()} for n in BUDGETS},
+                   "repeats": args.repeats}
+            # the same from the fastest frames: on a shared machine the load only adds time
+            m_lo, m_hi = min(times[v, k, lo]), min(times[v, k, hi])
+            row["per_iteration_min_ms"] = 1e3 * (m_hi - m_lo) / (hi - lo)
+            row["fixed_min_ms"] = 1e3 * m_lo - lo * row["per_iteration_min_ms"]
+            # and in CPU time (all the process's threads: host, OpenCL and GL workers): the
+            # work a frame costs, whatever else runs on the machine
+            c_lo, c_hi = statistics.median(cpu[v, k, lo]), statistics.median(cpu[v, k, hi])
+            row["per_iteration_cpu_ms"] = 1e3 * (c_hi - c_lo) / (hi - lo)
+            row["fixed_cpu_ms"] = 1e3 * c_lo - lo * row["per_iteration_cpu_ms"]
+            rows.append(row)
+            print(f"  {v:6s} {k:6s} fixed {row['fixed_ms']:7.1f} ms  per iteration "
+                  f"{row['per_iteration_ms']:6.1f} ms  ({lo} it: {row['frame_ms'][lo]:.1f} ms: "
+                  + ", ".join(f"{st} {x:.1f}" for st, x in row["stages_ms"][lo].items()) + ")",
+                  flush=True)
+    print(f"\n(fixed = t({lo}) - {lo} x per iteration, per iteration = (t({hi}) - t({lo})) / "
+          f"{hi - lo}; {args.repeats} frames)\n")
+    print("| frames | from | fixed before | fixed after | x | per iteration before | after | x |"
+          "\n|---|---|---|---|---|---|---|---|")
+    by = {(r["variant"], r["frames"]): r for r in rows}
+    for k in KINDS:
+        a, b = by[("after", k)], by.get(("before", k))
+        for stat, sfx in (("medians", ""), ("minima", "_min"), ("CPU time", "_cpu")):
+            fa, pa = a[f"fixed{sfx}_ms"], a[f"per_iteration{sfx}_ms"]
+            if b is None:
+                print(f"| {k} | {stat} | - | {fa:.1f} ms | - | - | {pa:.1f} ms | - |")
+                continue
+            fb, pb = b[f"fixed{sfx}_ms"], b[f"per_iteration{sfx}_ms"]
+            a[f"fixed_ratio{sfx}"] = fb / fa if fa > 0 else float("inf")
+            a[f"per_iteration_ratio{sfx}"] = pb / pa if pa > 0 else float("inf")
+            print(f"| {k} | {stat} | {fb:.1f} ms | {fa:.1f} ms | {a[f'fixed_ratio{sfx}']:.2f} | "
+                  f"{pb:.1f} ms | {pa:.1f} ms | {a[f'per_iteration_ratio{sfx}']:.2f} |")
     out["cost"] = rows
 
 
@@ -153,6 +241,9 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--quick", action="store_true", help="eval: the small clip")
+    ap.add_argument("--baseline", default=BASELINE_REV,
+                    help=f"cost: the revision measured as 'before' (default {BASELINE_REV}, "
+                         "before issue 10's cost work; '' for none)")
     ap.add_argument("--no-plot", action="store_true", help="eval: no video.png")
     ap.add_argument("--out", type=Path, default=REPO / "bench_results")
     args = ap.parse_args(argv)

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..reference.blur import check_field
 from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
-from ..reference.ops import scale_preconditioner
+from ..reference.ops import check_adjoint, scale_preconditioner
 from .blur import ClBlur
 
 log = logging.getLogger(__name__)
@@ -57,6 +57,8 @@ class ClSolveOps:
         when the compensation flattens it): d = d(S (F P − target)). None: no scale. With a
         scale the steps are preconditioned (``solver.cl`` PRECOND, the host array of
         :func:`~rtdefocus.reference.ops.scale_preconditioner`, as in the NumPy twin).
+    adjoint : "exact" | "fast"
+        How :meth:`gradient` forms FISTA's ``Fᵀ q`` (:data:`rtdefocus.reference.ops.ADJOINTS`).
 
     Attributes
     ----------
@@ -74,7 +76,7 @@ class ClSolveOps:
     backend = "opencl"
 
     def __init__(self, runtime, psfs, idx, wts, metric: Metric, blur_variant: str | None = None,
-                 scale=None):
+                 scale=None, adjoint: str = "exact"):
         # pyopencl on first use, not at import: NumPy-only runs skip its start-up cost.
         import pyopencl as cl
         import pyopencl.array as cla
@@ -84,6 +86,14 @@ class ClSolveOps:
         self.queue = runtime.queue
         self.metric = metric
         self.blur = ClBlur(runtime, psfs, idx, wts, channels=3, variant=blur_variant)
+        check_adjoint(adjoint)
+        self.adjoint_form = adjoint
+        # adjoint="fast": FISTA's gradient is the forward kernel with the PSFs flipped
+        # (rtdefocus.reference.ops.ADJOINTS); its own ClBlur, the same field otherwise.
+        self._gblur = (self.blur if adjoint == "exact" else
+                       ClBlur(runtime, np.ascontiguousarray(np.asarray(psfs)[:, ::-1, ::-1]), idx,
+                              wts, channels=3, variant=blur_variant))
+        self._grad = self._gblur.adjoint if adjoint == "exact" else self._gblur.forward
         self.psfs = self.blur.psfs
         self.shape = self.blur.shape
         _, h, w = self.shape
@@ -151,7 +161,10 @@ class ClSolveOps:
                    ("metric_residual", "metric_update", "metric_curvature")}
         self._k.update({name: cl.Kernel(self._prg_s, name) for name in
                         ("pg_direction", "pg_step", "axpy", "fista_step", "clamp_copy",
-                         "decode_lut", "encode_lut")})
+                         "decode_lut", "encode_lut", "carry")})
+        self._map = cla.zeros(self.queue, (h, w, 2), np.float32)     # set_motion's, reused
+        self._valid = cla.zeros(self.queue, (h, w), np.uint8)
+        self._identity = True
         self._k_reduce = cl.Kernel(prg_r, "reduce_partials")
         log.debug("ClSolveOps %dx%d on %s: metric local %s, element WG %d x %d items",
                   w, h, runtime.description, self._m_local, wg, items)
@@ -194,6 +207,11 @@ class ClSolveOps:
 
     def adjoint(self, src, dst) -> None:
         self.blur.adjoint(src, dst)
+
+    def gradient(self, src, dst) -> None:
+        """FISTA's ``Fᵀ src``: the exact adjoint, or the flipped-PSF forward (``adjoint="fast"``,
+        :data:`rtdefocus.reference.ops.ADJOINTS`; twin ``NumpyOps.gradient``)."""
+        self._grad(src, dst)
 
     # ------------------------------------------------------------------ metric
     def metric_residual(self, fp, target, q) -> float:
@@ -245,6 +263,34 @@ class ClSolveOps:
             return float("nan"), float("nan")
         dd, pp = self._reduce(self._e_groups, 2)
         return float(dd), float(pp)
+
+    # ------------------------------------------------------------------ motion
+    def set_motion(self, map_xy, valid) -> None:
+        """Upload the motion :meth:`carry` moves fields along (into buffers allocated once):
+        ``(H, W, 2)`` float32 source coordinates (None: the picture did not move) and the
+        ``(H, W)`` bool mask of valid pixels."""
+        _, h, w = self.shape
+        if map_xy is not None:
+            self._map.set(np.ascontiguousarray(map_xy, np.float32).reshape(h, w, 2),
+                          queue=self.queue)
+        self._valid.set(np.ascontiguousarray(valid, np.uint8).reshape(h, w), queue=self.queue)
+        self._identity = map_xy is None
+
+    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False) -> None:
+        """dst = base_new + B(src − base_prev) where valid, else fallback (``kernels/solver.cl``
+        ``carry``; twin :func:`rtdefocus.reference.ops.carry_field`). ``dst`` may be
+        ``fallback`` or ``base_new``, never ``src`` or ``base_prev``."""
+        if dst is src or dst is base_prev:
+            raise InputError("carry cannot write over its source field; pass another buffer")
+        if (base_prev is None) != (base_new is None):
+            raise InputError("carry takes both bases (base_prev, base_new) or neither")
+        flags = ((1 if base_prev is not None else 0) | (2 if clamp else 0)
+                 | (4 if self._identity else 0))
+        bp = (base_prev if base_prev is not None else src).data
+        bn = (base_new if base_new is not None else src).data
+        self._k["carry"](self.queue, self._p_global, (self._wg,), src.data, bp, bn,
+                         fallback.data, self._map.data, self._valid.data, dst.data,
+                         np.int32(flags), self._h, self._w)
 
     # ------------------------------------------------------------------ LUT I/O
     def _lut_buffers(self, lut: np.ndarray, encoder: bool):

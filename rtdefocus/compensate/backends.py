@@ -22,7 +22,8 @@ BACKENDS = ("numpy", "opencl")
 
 
 def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None,
-                   blur: str = "gather", blur_variant: str | None = None, scale=None):
+                   blur: str = "gather", blur_variant: str | None = None, scale=None,
+                   adjoint: str = "exact"):
     """The ops object of a backend for the kernel field ``(psfs, idx, wts)`` and a metric.
 
     Parameters
@@ -39,24 +40,26 @@ def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None
     scale : (3, H, W) float32, optional
         Per-pixel residual scale (the surface's albedo, ``surface="flatten"``); see
         :class:`~rtdefocus.reference.ops.NumpyOps`.
+    adjoint : "exact" | "fast"
+        How FISTA's gradient is formed (:data:`rtdefocus.reference.ops.ADJOINTS`).
 
     Returns
     -------
     NumpyOps or ClSolveOps
     """
     if backend == "numpy":
-        return NumpyOps(psfs, idx, wts, metric, blur=blur, scale=scale)
+        return NumpyOps(psfs, idx, wts, metric, blur=blur, scale=scale, adjoint=adjoint)
     if backend == "opencl":
         # (pyopencl itself is imported, and a device opened, only here: by get_runtime and
         # ClSolveOps on first use.)
         return ClSolveOps(runtime or get_runtime(), psfs, idx, wts, metric,
-                          blur_variant=blur_variant, scale=scale)
+                          blur_variant=blur_variant, scale=scale, adjoint=adjoint)
     raise InputError(f"backend must be one of {BACKENDS}; got {backend!r}")
 
 
 def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
                 solver: str = "fista", runtime=None, blur: str = "gather",
-                blur_variant: str | None = None, scale=None) -> Solver:
+                blur_variant: str | None = None, scale=None, adjoint: str = "exact") -> Solver:
     """A :class:`~.solvers.Solver` for a kernel field on a backend named by string.
 
     Parameters
@@ -66,11 +69,11 @@ def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = 
         Default: :meth:`Metric.ycbcr` with :data:`~rtdefocus.reference.metric.DEFAULT_WEIGHTS`.
     backend : "numpy" | "opencl"
     solver : "fista" | "pg"
-    runtime, blur, blur_variant, scale : as for :func:`make_solve_ops`.
+    runtime, blur, blur_variant, scale, adjoint : as for :func:`make_solve_ops`.
     """
     check_solver(solver)                 # before any device work
     if metric is None:
         metric = Metric.ycbcr(DEFAULT_WEIGHTS)
     ops = make_solve_ops(backend, psfs, idx, wts, metric, runtime=runtime, blur=blur,
-                         blur_variant=blur_variant, scale=scale)
+                         blur_variant=blur_variant, scale=scale, adjoint=adjoint)
     return Solver(ops, solver=solver)

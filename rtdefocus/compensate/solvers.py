@@ -149,7 +149,7 @@ class Solver:
         # the Hessian back to the plain blur's (ops.lipschitz_factor = 1; NumpyOps.precond).
         self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05 * ops.lipschitz_factor
         new = self.ops.new
-        self.target = new()
+        self.target, self.target_prev = new(), new()
         self.P, self._P_prev, self._P_alt = new(), new(), new()
         self._q, self._q_alt = new(), new()
         self._fp, self._fp_alt = new(), new()
@@ -163,6 +163,7 @@ class Solver:
         self._grad_ready = False
         self._momentum = False
         self._theta, self._beta = 1.0, 0.0
+        self._carried = (False, 1.0, 0.0)            # the momentum begin_frame kept
     # ------------------------------------------------------------------ public
     def solve(self, target: np.ndarray, P0: np.ndarray | None = None, *, iterations: int = 30,
               tol: float = 0.0, headroom=None) -> tuple[np.ndarray, SolveInfo]:
@@ -254,40 +255,44 @@ class Solver:
             return False, d_cold, d_cold
         return True, self._d, d_cold
 
-    def state(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, tuple]:
-        """Host copies of ``P`` and, while FISTA has momentum, ``P_prev`` and ``G_prev``, and
-        the momentum's ``(theta, beta)``."""
-        momentum = (self._theta, self._beta)
-        if self._momentum:
-            return (self.ops.download(self.P), self.ops.download(self._P_prev),
-                    self.ops.download(self._G_prev), momentum)
-        return self.ops.download(self.P), None, None, momentum
+    def begin_frame(self) -> None:
+        """A video's next frame: keep the current target (as ``target_prev``, on the backend)
+        and FISTA's momentum for :meth:`start_from_motion`; write the new target into
+        ``self.target`` next (then :meth:`target_changed`)."""
+        self.target, self.target_prev = self.target_prev, self.target
+        self._carried = (self._momentum, self._theta, self._beta)
 
-    def carry_momentum(self, P_prev0: np.ndarray, G_prev0: np.ndarray, valid: np.ndarray,
-                       momentum: tuple[float, float]) -> None:
-        """Keep FISTA's momentum into a new frame (after :meth:`set_start` /
-        :meth:`keep_better_than_cold` kept a warm start).
+    def start_from_motion(self) -> bool:
+        """Start from the previous frame's correction moved along the motion (on the backend,
+        no host round trip): ``P = clamp(T + B(P − T_prev))`` where the motion is valid, the
+        cold start ``clamp(T)`` elsewhere; B is the motion set by ``ops.set_motion``. Kept only
+        when it is at least as close as the cold start (:meth:`keep_better_than_cold`); then
+        FISTA's previous iterate and gradient move the same way (``P_prev``, ``G_prev``), with
+        the momentum dropped pixel by pixel where the motion is invalid (``P_prev = P``,
+        ``G_prev = G``: a plain step there). Call after :meth:`begin_frame` and the new target.
 
-        ``P_prev0`` and ``G_prev0`` are the previous iterate and its gradient moved along the
-        motion; where ``valid`` is False the momentum is dropped pixel by pixel (``P_prev = P``,
-        ``G_prev = G``, so the extrapolation there is the plain step); ``momentum`` is the
-        ``(theta, beta)`` of :meth:`state`. Costs the adjoint the first iteration needs anyway,
-        and one read-back.
+        Returns
+        -------
+        bool : whether the warm start was kept (else the solve starts cold).
         """
         ops = self.ops
-        if self.solver != "fista":
-            return
-        if self._d is None:
-            ops.forward(self.P, self._fp)
-            self._d = ops.metric_residual(self._fp, self.target, self._q)
-        ops.adjoint(self._q, self._G)
+        momentum, theta, beta = self._carried
+        ops.carry(self.P, self.target, self._P_alt, base_prev=self.target_prev,
+                  base_new=self.target, clamp=True)
+        self.P, self._P_alt = self._P_alt, self.P
+        self._forget_p()
+        kept, _, _ = self.keep_better_than_cold()
+        if not kept or not momentum or self.solver != "fista":
+            return kept
+        ops.carry(self._P_prev, self.P, self._s, base_prev=self.target_prev,
+                  base_new=self.target, clamp=True)
+        self._P_prev, self._s = self._s, self._P_prev
+        ops.gradient(self._q, self._G)              # the first iteration's, done here
         self._grad_ready = True
-        P = ops.download(self.P)
-        G = ops.download(self._G)
-        ops.upload(np.where(valid[None], np.clip(P_prev0, 0.0, 1.0), P), self._P_prev)
-        ops.upload(np.where(valid[None], G_prev0, G), self._G_prev)
-        self._theta, self._beta = momentum
-        self._momentum = True
+        ops.carry(self._G_prev, self._G, self._fs)
+        self._G_prev, self._fs = self._fs, self._G_prev
+        self._theta, self._beta, self._momentum = theta, beta, True
+        return True
 
     def run(self, iterations: int, tol: float = 0.0) -> SolveInfo:
         """Iterate from the current ``self.P`` towards ``self.target`` (both on the backend).
@@ -362,7 +367,7 @@ class Solver:
         have_grad = self._grad_ready      # G holds F^T q at the current P
         for _ in range(iterations):
             if not have_grad:
-                ops.adjoint(self._q, self._G)
+                ops.gradient(self._q, self._G)
             # By linearity the gradient at y = P + β (P − P_prev) is G + β (G − G_prev): one
             # adjoint per iteration, at the accepted iterate.
             # The step sizes are only needed for the tol test: skip that host round trip otherwise.

@@ -22,7 +22,22 @@ from .blur import (
 from .lut import encode_lut, inverse_lut_tables
 from .metric import Metric, metric_field
 
-__all__ = ["NumpyOps", "scale_preconditioner"]
+__all__ = ["ADJOINTS", "NumpyOps", "carry_field", "check_adjoint", "scale_preconditioner"]
+
+#: How FISTA's gradient ``Fᵀ q`` is formed. ``"exact"``: the transpose of F, each tap weighted by
+#: the blend at the pixel it came from (``blur_adjoint``). ``"fast"``: the forward blur with the
+#: PSFs flipped, blended at the output pixel — the same operator wherever the blend weights are
+#: constant over a kernel's support (they vary over hundreds of pixels, kernels span a few), and
+#: as cheap as the forward on the device (the exact adjoint's blend at the source pixel costs
+#: ~2x). FISTA's steps are accepted on the exact distance (a step that raises it is rejected),
+#: so the solve stays monotone either way; PG's exact line search always uses ``"exact"``.
+ADJOINTS = ("exact", "fast")
+
+
+def check_adjoint(adjoint: str) -> None:
+    """Raise :class:`InputError` unless ``adjoint`` is one of :data:`ADJOINTS`."""
+    if adjoint not in ADJOINTS:
+        raise InputError(f"adjoint must be one of {ADJOINTS}; got {adjoint!r}")
 
 
 def _vdot(a: np.ndarray, b: np.ndarray) -> float:
@@ -51,6 +66,53 @@ def scale_preconditioner(scale, psfs, idx, wts) -> np.ndarray:
     return (1.0 / np.maximum(w, s2.min())).astype(np.float32)
 
 
+def carry_field(src, map_xy, valid, fallback, base_prev=None, base_new=None,
+                clamp: bool = False) -> np.ndarray:
+    """A field of the previous frame moved along the motion (the warm start of a video).
+
+    ``out = base_new + B(src − base_prev)`` where ``valid``, else ``fallback``; clamped to
+    [0, 1] when ``clamp``. ``B`` samples bilinearly at ``map_xy`` (the previous frame's pixel
+    that each pixel came from), taps outside the frame counting as 0; ``map_xy`` None is the
+    identity (no resampling). Without bases (None) the field itself is moved (``base`` 0). The
+    twin of ``kernels/solver.cl`` ``carry`` (exact bilinear weights in float32, where
+    ``cv2.remap`` quantises them to 1/32).
+
+    Parameters
+    ----------
+    src, fallback, base_prev, base_new : (C, H, W) float32
+    map_xy : (H, W, 2) float32 source coordinates (x, y), or None
+    valid : (H, W) bool
+    clamp : bool
+
+    Returns
+    -------
+    (C, H, W) float32
+    """
+    src = np.asarray(src, np.float32)
+    diff = src if base_prev is None else src - np.asarray(base_prev, np.float32)
+    c, h, w = diff.shape
+    if map_xy is None:
+        moved = diff.copy()
+    else:
+        mx, my = map_xy[..., 0].astype(np.float32), map_xy[..., 1].astype(np.float32)
+        x0, y0 = np.floor(mx), np.floor(my)
+        fx, fy = mx - x0, my - y0
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        moved = np.zeros_like(diff)
+        for dy, wy in ((0, 1.0 - fy), (1, fy)):
+            for dx, wx in ((0, 1.0 - fx), (1, fx)):
+                xs, ys = x0 + dx, y0 + dy
+                inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+                tap = diff[:, np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]
+                moved += np.where(inside, (wy * wx).astype(np.float32), np.float32(0)) * tap
+    if base_new is not None:
+        moved += np.asarray(base_new, np.float32)
+    out = np.where(np.asarray(valid, bool)[None], moved, np.asarray(fallback, np.float32))
+    if clamp:
+        np.clip(out, 0.0, 1.0, out=out)
+    return out.astype(np.float32)
+
+
 class NumpyOps:
     """The solve's primitive operations on host arrays (the reference twin of ClSolveOps).
 
@@ -66,6 +128,8 @@ class NumpyOps:
         so that ``2 Fᵀ q`` stays its gradient. None: no scale (``kernels/metric.cl`` HAS_SCALE).
         With a scale the steps are preconditioned by :func:`scale_preconditioner` (``precond``;
         ``kernels/solver.cl`` PRECOND).
+    adjoint : "exact" | "fast"
+        How :meth:`gradient` forms FISTA's ``Fᵀ q`` (:data:`ADJOINTS`).
 
     Attributes
     ----------
@@ -80,10 +144,14 @@ class NumpyOps:
 
     backend = "numpy"
 
-    def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather", scale=None):
+    def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather", scale=None,
+                 adjoint: str = "exact"):
         self.psfs, self.idx, self.wts = check_field(psfs, idx, wts)
         if blur not in ("gather", "filter2d"):
             raise InputError(f"blur must be 'gather' or 'filter2d'; got {blur!r}")
+        check_adjoint(adjoint)
+        self.adjoint_form = adjoint
+        self._psfs_flipped = np.ascontiguousarray(self.psfs[:, ::-1, ::-1])
         self.metric = metric
         self.blur_form = blur
         self._fwd = blur_forward if blur == "gather" else blur_forward_filter2d
@@ -129,6 +197,14 @@ class NumpyOps:
 
     def adjoint(self, src, dst) -> None:
         dst[...] = self._adj(src, self.psfs, self.idx, self.wts)
+
+    def gradient(self, src, dst) -> None:
+        """FISTA's ``Fᵀ src``: the exact :meth:`adjoint`, or with ``adjoint="fast"`` the forward
+        blur with flipped PSFs blended at the output pixel (:data:`ADJOINTS`)."""
+        if self.adjoint_form == "exact":
+            self.adjoint(src, dst)
+        else:
+            dst[...] = self._fwd(src, self._psfs_flipped, self.idx, self.wts)
 
     def metric_residual(self, fp, target, q) -> float:
         e = fp - target
@@ -181,6 +257,18 @@ class NumpyOps:
             return float("nan"), float("nan")
         d = P_out - P
         return _vdot(d, d), _vdot(P_out, P_out)
+
+    def set_motion(self, map_xy, valid) -> None:
+        """The motion :meth:`carry` moves fields along: ``(H, W, 2)`` float32 source
+        coordinates (None: the picture did not move) and the ``(H, W)`` bool mask of valid
+        pixels."""
+        self._motion = (None if map_xy is None else np.asarray(map_xy, np.float32),
+                        np.asarray(valid, bool))
+
+    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False) -> None:
+        """dst = :func:`carry_field` of ``src`` along the motion of :meth:`set_motion`."""
+        map_xy, valid = self._motion
+        dst[...] = carry_field(src, map_xy, valid, fallback, base_prev, base_new, clamp)
 
     def decode(self, codes, lut, lo, scale, dst) -> None:
         lut = np.asarray(lut, dtype=np.float32)
