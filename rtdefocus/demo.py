@@ -125,10 +125,13 @@ def table_markdown(rows: list[ImageScores], preset: str) -> str:
               "| image | input: geometry corrected | input: defocus corrected | % increase "
               "| output: geometry corrected | output: defocus corrected | % increase |",
               "|---|---|---|---|---|---|---|"]
+    def pct(v: float) -> str:
+        return f"{v:.2f}" if np.isfinite(v) else "–"      # no edges to begin with
+
     for r in rows:
         lines.append(f"| {r.name} | {r.edges_input['geometry']} | {r.edges_input['defocus']} | "
-                     f"{r.edge_increase_input:.2f} | {r.edges_output['geometry']} | "
-                     f"{r.edges_output['defocus']} | {r.edge_increase_output:.2f} |")
+                     f"{pct(r.edge_increase_input)} | {r.edges_output['geometry']} | "
+                     f"{r.edges_output['defocus']} | {pct(r.edge_increase_output)} |")
     return "\n".join(lines) + "\n"
 
 

@@ -50,7 +50,8 @@ class ImageScores:
 
 
 def _percent(before: int, after: int) -> float:
-    return 100.0 * (after - before) / max(before, 1)
+    """Percent increase; NaN from nothing (no edges before: a ratio would mean nothing)."""
+    return 100.0 * (after - before) / before if before > 0 else float("nan")
 
 
 def edge_pixels(rgb: np.ndarray, mask: np.ndarray | None = None) -> int:
