@@ -116,6 +116,9 @@ def _add_play(sub):
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
     _add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
+    p.add_argument("--sequential", action="store_true",
+                   help="decode, compensate and encode one after another on one thread (for "
+                   "comparison; default: decode and file encode on threads of their own)")
     p.set_defaults(func=cmd_play)
 
 
@@ -146,7 +149,8 @@ def cmd_play(args) -> int:
                     bar.update(done - bar.n)
             cache = None if args.no_cache else (args.cache or True)
             player = Player(comp, source, sink, fps=args.fps, iterations=args.iterations,
-                            cache=cache, progress=progress, overlay=args.overlay)
+                            cache=cache, progress=progress, overlay=args.overlay,
+                            threads=not args.sequential)
             try:
                 player.run()
             except KeyboardInterrupt:  # Ctrl+C ends a live show; the summary still counts

@@ -9,9 +9,20 @@ Stages and threads
     (paced to fps for a file                                   (GL warp + CL solve: the GL and CL
      shown in real time)                                        contexts live on this thread)
 
-Nothing is shared between the two threads except the queue and a few counters each written by
+    main thread                    bounded queue (2)          writer thread (file sinks only)
+    ... ──► sink hand-off ──►     [ (frame, index) ]  ──►   sink.write (encode + write)
+
+With a file sink the three stages overlap: decode of frame i + 1, solve of frame i and encode of
+frame i − 1 run at once (OpenCV's decode and encode and OpenCL's waits release the GIL), so
+the frame rate is set by the slowest stage rather than their sum. The projector window is not
+given a writer: GL stays on the thread that owns its context. ``threads=False`` runs every
+stage in turn on the calling thread (the reference the threaded path must equal frame by frame).
+
+Nothing is shared between the threads except the queues and a few counters each written by
 one thread only; in particular there is no "latest frame" attribute that one thread overwrites
-and another reads.
+and another reads. An error on either side thread reaches the main thread, which raises it
+(the original exception, with a note naming the thread and frame); on any exit, Ctrl-C
+included, the side threads are stopped and joined before :meth:`Player.run` returns.
 
 Drop policy
 -----------
@@ -50,6 +61,7 @@ from .sinks import Sink
 from .slides import SlidesMixin, _Work
 from .sources import Frame, SlidesSource, Source
 from .stats import LoopStats, Series
+from .threads import SinkWriter
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +121,10 @@ class Player(SlidesMixin):
         Iteration cap per still (default 10 × ``max_iterations``).
     ahead : int
         Slides compensated ahead of the current one while the show is idle.
+    threads : bool
+        Decode on a thread of its own and, for a file sink, encode/write on another (default);
+        False runs every stage in turn on the calling thread (no pacing, no dropping: for
+        comparisons and tests).
 
     Notes
     -----
@@ -120,7 +136,8 @@ class Player(SlidesMixin):
                  iterations: int | None = None, live: bool | None = None,
                  queue_size: int | None = None, cache=None, progress: ProgressFn | None = None,
                  overlay: bool = False, max_iterations: int | None = None, refine_tol: float = 2e-4,
-                 refine_max: int | None = None, ahead: int = 2, keymap: dict[str, str] | None = None):
+                 refine_max: int | None = None, ahead: int = 2, keymap: dict[str, str] | None = None,
+                 threads: bool = True):
         if iterations is not None and iterations < 0:
             raise InputError(f"iterations must be >= 0; got {iterations}")
         if fps is not None and fps <= 0:
@@ -149,6 +166,8 @@ class Player(SlidesMixin):
         self._hold = threading.Event()       # set while a paced (file) source should wait
         self._last_index = -1
         self._work: _Work | None = None
+        self.threads = bool(threads)
+        self._writer: SinkWriter | None = None
 
     def settings(self) -> dict:
         """What changes a compensated still: the slide cache keys on it (with the calibration)."""
@@ -236,7 +255,7 @@ class Player(SlidesMixin):
         if self.controls.overlay:
             out = draw_overlay(out, st.overlay_lines(self.controls.mode, self.controls.paused))
         t0 = time.perf_counter()
-        self.sink.write(out, index)
+        (self._writer or self.sink).write(out, index)   # the writer: hand-off only
         t1 = time.perf_counter()
         st.add("present", t1 - t0)
         st.add("frame", t1 - t_start)
@@ -308,6 +327,8 @@ class Player(SlidesMixin):
                 else:
                     self._put_blocking(q, frame)
         except BaseException as exc:  # handed to the main thread, which re-raises it
+            if hasattr(exc, "add_note"):
+                exc.add_note(f"(raised by {src.describe()} on the decoder thread)")
             self._put_blocking(q, _Failure(exc))
             return
         self._put_blocking(q, _END)
@@ -333,56 +354,89 @@ class Player(SlidesMixin):
             except queue.Full:
                 continue
 
+    def _read_inline(self):
+        """``threads=False``: the next frame read on this thread (or the end marker)."""
+        t0 = time.perf_counter()
+        frame = self.source.read()
+        if frame is None:
+            return _END
+        self.stats.stages["read"].add(time.perf_counter() - t0)
+        self.stats.frames_in += 1
+        return frame
+
     def _run_sequence(self) -> None:
-        self.stats.stages["read"] = Series()  # created here: the decoder never resizes the dict
+        st = self.stats
+        st.stages["read"] = Series()  # created here: the decoder never resizes the dict
         q: queue.Queue = queue.Queue(maxsize=self.queue_size)
-        thread = threading.Thread(target=self._decoder, args=(q,), name="rtdefocus-decode",
-                                  daemon=True)
-        thread.start()
+        thread = None
+        if self.threads:
+            thread = threading.Thread(target=self._decoder, args=(q,), name="rtdefocus-decode",
+                                      daemon=True)
+            thread.start()
+        ok = False
+        try:
+            if self.threads and getattr(self.sink, "threaded", False):
+                st.stages["write"] = Series()   # the writer thread's own series
+                self._writer = SinkWriter(self.sink, maxsize=2, series=st.stages["write"])
+            self._play_frames(q)
+            if self._writer is not None:
+                t0 = time.perf_counter()
+                self._writer.finish()            # the queued frames, written; its error raised
+                st.add("flush", time.perf_counter() - t0)
+            ok = True
+        finally:
+            self._stop.set()
+            if self._writer is not None:
+                if not ok:
+                    self._writer.abort()
+                self._writer = None
+            if thread is not None:
+                thread.join(timeout=10)
+                if thread.is_alive():
+                    log.warning("decoder thread did not stop within 10 s (a blocking camera read?)")
+
+    def _play_frames(self, q: queue.Queue) -> None:
         held: Frame | None = None
         shown_version = -1
-        try:
-            while True:
-                self._handle_keys()
-                c = self.controls
-                if c.quit:
-                    break
-                if c.paused and self.sink.realtime:
-                    self._hold.set()
-                    if held is not None:
-                        shown_version = self._refresh_held(held, shown_version)
-                    else:
-                        self._idle(0.02)
-                    continue
-                self._hold.clear()
-                self._work = None
+        while True:
+            self._handle_keys()
+            c = self.controls
+            if c.quit:
+                break
+            if c.paused and self.sink.realtime:
+                self._hold.set()
+                if held is not None:
+                    shown_version = self._refresh_held(held, shown_version)
+                else:
+                    self._idle(0.02)
+                continue
+            self._hold.clear()
+            self._work = None
+            if self.threads:
                 try:
                     item = q.get(timeout=0.05 if self.sink.interactive else 1.0)
                 except queue.Empty:
                     continue
-                if item is _END:
-                    break
-                if isinstance(item, _Failure):
-                    raise item.exc
-                frame: Frame = item
-                if frame.index <= self._last_index:  # the queue is FIFO; this would be a bug
-                    raise RuntimeError(f"frame {frame.index} after {self._last_index}: reordered")
-                self._last_index = frame.index
-                t0 = time.perf_counter()
-                if self._direct_geometry():
-                    self._present_warped(frame.image, frame.index, frame.t_read, t0)
-                else:
-                    out = self._render(frame.image, iterations=self._frame_iterations())
-                    self._present(out, frame.index, frame.t_read, t0)
-                self._update_budget(t0)
-                held, shown_version = frame, c.version
-                if self.progress:
-                    self.progress(self.stats.frames_out, self.source.n_frames)
-        finally:
-            self._stop.set()
-            thread.join(timeout=10)
-            if thread.is_alive():
-                log.warning("decoder thread did not stop within 10 s (a blocking camera read?)")
+            else:
+                item = self._read_inline()
+            if item is _END:
+                break
+            if isinstance(item, _Failure):
+                raise item.exc
+            frame: Frame = item
+            if frame.index <= self._last_index:  # the queue is FIFO; this would be a bug
+                raise RuntimeError(f"frame {frame.index} after {self._last_index}: reordered")
+            self._last_index = frame.index
+            t0 = time.perf_counter()
+            if self._direct_geometry():
+                self._present_warped(frame.image, frame.index, frame.t_read, t0)
+            else:
+                out = self._render(frame.image, iterations=self._frame_iterations())
+                self._present(out, frame.index, frame.t_read, t0)
+            self._update_budget(t0)
+            held, shown_version = frame, c.version
+            if self.progress:
+                self.progress(self.stats.frames_out, self.source.n_frames)
 
     def _refresh_held(self, held: Frame, shown_version: int) -> int:
         """Paused video: keep refining the held frame until converged (it continues from the P

@@ -9,6 +9,9 @@ frame loop how to drive it:
     File sinks are not realtime: every frame is written, in order, fully solved.
 ``interactive``
     :meth:`Sink.poll` returns key presses (the window's), which the loop dispatches.
+``threaded``
+    :meth:`Sink.write` may run on a thread of its own (:mod:`rtdefocus.stream.threads`): the
+    file sinks, whose OpenCV encode releases the GIL. Not the window (GL stays on its thread).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ class Sink:
     kind = "sink"
     realtime = False
     interactive = False
+    threaded = False
 
     def write(self, frame: np.ndarray, index: int) -> None:
         """Take one frame ((H, W, 3) uint8 RGB); ``index`` is the source frame it came from."""
@@ -82,6 +86,7 @@ class VideoFileSink(Sink):
     """
 
     kind = "video file"
+    threaded = True
 
     def __init__(self, path: str | Path, fps: float = 30.0, fourcc: str | None = None):
         self.path = Path(path)
@@ -129,6 +134,7 @@ class ImageSequenceSink(Sink):
     frame index, so a dropped frame leaves a visible gap)."""
 
     kind = "images"
+    threaded = True
 
     def __init__(self, folder: str | Path, pattern: str = "frame_{index:06d}.png"):
         self.folder = Path(folder)

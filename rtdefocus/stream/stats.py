@@ -77,8 +77,11 @@ class LoopStats:
         Seconds per frame of each stage: ``read`` (source read + decode, decoder thread),
         ``compensate`` (the whole Compensator call), its own stages (``warp``, ``decode``,
         ``solve``, ``encode`` as it reports them in ``last_info["seconds"]``),
-        ``present`` (sink write), ``frame`` (main-thread time per output frame) and ``latency``
-        (decode to presented).
+        ``present`` (sink write on the main thread; with a writer thread only the hand-off,
+        which waits while the writer's queue is full), ``write`` (the writer thread's
+        ``sink.write``: encode + file write), ``flush`` (once: the frames still queued at the
+        end), ``frame`` (main-thread time per output frame) and ``latency`` (decode to
+        presented, or to handed to the writer).
     iterations : Series
         Solver iterations per compensated frame.
     residual : float or None
