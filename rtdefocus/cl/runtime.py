@@ -99,6 +99,8 @@ class ClRuntime:
     """A context and in-order queue on one device, with a per-context program cache."""
 
     device: object
+    #: Extra context properties (GL sharing: :mod:`rtdefocus.cl.glshare`); None for a plain one.
+    properties: list | None = None
     context: object = field(init=False)
     queue: object = field(init=False)
     _programs: dict = field(init=False, default_factory=dict)
@@ -106,7 +108,8 @@ class ClRuntime:
 
     def __post_init__(self):
         cl = _cl()
-        self.context = cl.Context([self.device])
+        self.context = (cl.Context([self.device], properties=self.properties) if self.properties
+                        else cl.Context([self.device]))
         self.queue = cl.CommandQueue(self.context)
 
     @property

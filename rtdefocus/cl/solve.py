@@ -307,10 +307,16 @@ class ClSolveOps:
                                            for a in host)
         return bufs
 
-    def decode(self, codes: np.ndarray, lut: np.ndarray, lo: float, scale: float, dst) -> None:
-        """dst = lo + scale · lut[c, codes[..., c]] (planar) from uint8 (H, W, 3) codes."""
-        codes = np.ascontiguousarray(codes, dtype=np.uint8)
-        self._codes.set(codes, queue=self.queue)
+    @property
+    def codes(self):
+        """The device's uint8 (H, W, 3) codes buffer (:meth:`decode` input, :meth:`encode` output)."""
+        return self._codes
+
+    def decode(self, codes: np.ndarray | None, lut: np.ndarray, lo: float, scale: float, dst) -> None:
+        """dst = lo + scale · lut[c, codes[..., c]] (planar) from uint8 (H, W, 3) codes; None:
+        :attr:`codes` already holds them (filled on the device, GL sharing)."""
+        if codes is not None:
+            self._codes.set(np.ascontiguousarray(codes, dtype=np.uint8), queue=self.queue)
         (lut_d,) = self._lut_buffers(lut, encoder=False)
         self._k["decode_lut"](self.queue, self._p_global, (self._wg,), self._codes.data,
                               lut_d.data, np.float32(lo), np.float32(scale), dst.data,

@@ -39,6 +39,11 @@ def cmd_info(args) -> int:
     ok, renderer = gl_available()
     print("OpenGL (offscreen):")
     print(f"   {renderer}" if ok else f"   unavailable: {renderer}")
+    from ..cl.glshare import gl_sharing_status
+
+    shared, why = gl_sharing_status()
+    print("GL sharing (warp output to OpenCL on the device):")
+    print(f"   available: {why}" if shared else f"   not available, frames go through the host: {why}")
     _print_monitors()
     return 0
 

@@ -158,6 +158,7 @@ class Compensator:
         self._lut = np.asarray(calib.lut, dtype=np.float32)
         self._lut_inc = increasing_lut(self._lut)
         self._solver: Solver | None = None
+        self._gl_share, self._gl_fresh = None, False
         # The video state: the last frame the solver worked on (projector space, uint8; its
         # target and solution stay on the solver's backend); None until the first frame and
         # after reset().
@@ -177,7 +178,7 @@ class Compensator:
             psfs = calib.psfs if psf_energy is None else trim_psfs(calib.psfs, float(psf_energy))
             ops = make_solve_ops(self.backend, psfs, calib.pix_idx, calib.pix_wts, metric,
                                  blur="filter2d", blur_variant=blur_variant, scale=scale,
-                                 adjoint=adjoint)
+                                 adjoint=adjoint, runtime=self._share_gl(warp_backend))
             self._solver = Solver(ops, solver=solver)
 
     # ------------------------------------------------------------------ public
@@ -215,6 +216,7 @@ class Compensator:
         """
         _check_budget(iterations)
         t0 = time.perf_counter()
+        self._gl_fresh = False             # set again only if this call renders the warp
         warped = self._warp_cached(image)
         t1 = time.perf_counter()
         out, info = self._compensate_warped(warped, iterations, warm_start)
@@ -233,6 +235,7 @@ class Compensator:
             return cache[1]
         warped = self.warp(image)
         self._warp_cache = (image.copy(), warped)
+        self._gl_fresh = self._gl_share is not None   # the shared renderbuffer holds this frame
         return warped
 
     def compensate_warped(self, warped: np.ndarray, *, iterations: int | None = None,
@@ -293,6 +296,15 @@ class Compensator:
         return P, info
 
     # ------------------------------------------------------------------ internals
+    def _share_gl(self, warp_backend: str):
+        """GL sharing (:mod:`rtdefocus.cl.glshare`) where the driver allows: the solver's OpenCL
+        runtime then shares the warp's GL context. None: the process runtime (read-back path)."""
+        self._gl_share, self._gl_fresh = None, False
+        if self.backend == "opencl" and warp_backend != "cv2":
+            from ..cl.glshare import open_gl_share
+            self._gl_share = open_gl_share()
+        return None if self._gl_share is None else self._gl_share.runtime
+
     def _direct(self, target: np.ndarray) -> np.ndarray:
         if self.method == "wiener":
             c = self.calib
@@ -372,7 +384,11 @@ class Compensator:
         s.begin_frame()
         # Decode through the same strictly increasing LUT the encoder inverts, so that a frame
         # the solve leaves alone comes back with its very codes.
-        ops.decode(warped, self._lut_inc, lo, scale, s.target)
+        codes = warped
+        if self._gl_fresh:                 # GL sharing: the warp's renderbuffer, on the device
+            self._gl_share.fill_codes(ops.codes, self.projector_size)
+            codes, self._gl_fresh = None, False
+        ops.decode(codes, self._lut_inc, lo, scale, s.target)
         s.target_changed()
         if self._surface is not None:
             # surface="flatten": T' = (b I − E) / A, solved with the residual scaled by A (the

@@ -27,7 +27,7 @@ from .runtime import create_context, load_program, read_rgb
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GLWarp", "warp_image"]
+__all__ = ["GLWarp", "shared_renderbuffer", "warp_image"]
 
 # Level-of-detail check on every LOD_STEP-th projector row/column (and the last): enough to
 # decide whether the frame minifies anywhere; the LOD itself is computed per pixel in the shader.
@@ -217,6 +217,13 @@ def _shared_warp(ctx, projector_size) -> GLWarp:
     if key not in _shared or _shared[key][0] is not ctx:
         _shared[key] = (ctx, GLWarp(ctx, projector_size))
     return _shared[key][1]
+
+
+def shared_renderbuffer(projector_size):
+    """The renderbuffer :func:`warp_image` renders into for this projector size in the shared
+    GL context (its last frame; None before the first): GL sharing reads it on the device."""
+    warp = _shared_warp(create_context(), projector_size)
+    return None if warp.fbo is None else warp.fbo.color_attachments[0]
 
 
 def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np.ndarray:
