@@ -231,6 +231,35 @@ def test_exposure_drift_during_the_geometry_stage_is_reported_with_the_fix():
         rd.calibrate(pc, stages=("geometry", "radiometry"))
 
 
+def test_exposure_drift_in_a_geometry_only_calibration_is_reported_with_the_fix():
+    """No radiometry stage to check it: the geometry stage's first white frame against its
+    last (``white_end``, no extra capture); exp(0.002 x 15 captures) ~ +3 %."""
+    small = {"projector_size": (240, 180), "camera_size": (360, 270)}
+    steady = rd.calibrate(sim.VirtualProCam("webcam", **small), stages=("geometry",))
+    assert np.abs(steady.meta["geometry"]["white_drift"]).max() < 0.005
+    assert steady.meta["captures"] == {"geometry": steady.meta["geometry"]["captures"]}
+    with pytest.raises(CalibrationError, match=r"exposure changed during the geometry stage.*"
+                                               r"rtdefocus calibrate \.\.\. --lock"):
+        rd.calibrate(sim.VirtualProCam("webcam", exposure_drift=0.002, **small),
+                     stages=("geometry",))
+
+
+def test_exposure_drift_during_the_psf_stage_is_reported_with_the_fix():
+    """The camera holds still through geometry, then its auto-exposure wakes up in the PSF
+    stage (exp(0.003 x ~20 captures) ~ +6 %): the white frame taken after the dots disagrees
+    with the one they were normalised by. (The steady case: tests/test_psf.py's budget test.)"""
+    pc = sim.VirtualProCam("cubicle", projector_size=(240, 180), camera_size=(360, 270))
+
+    def wake_up(stage, done, total):
+        if stage == "psf":
+            pc.exposure_drift = 0.003
+
+    with pytest.raises(CalibrationError, match=r"exposure changed during the psf stage.*"
+                                               r"rtdefocus calibrate \.\.\. --lock"):
+        rd.calibrate(pc, stages=("geometry", "psf"), progress=wake_up)
+    assert pc.exposure_drift == 0.003          # the drift began where the test meant it to
+
+
 def test_an_over_exposed_set_up_is_told_to_lower_the_exposure():
     pc = sim.VirtualProCam("webcam", exposure=3.0, **SMALL)
     with pytest.raises(CalibrationError, match=r"over-exposed.*Lower the camera's exposure"):
