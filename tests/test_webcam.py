@@ -318,6 +318,22 @@ def test_radial_k1_from_straight_lines_on_each_plane():
     assert abs(k1 + 0.08) < 0.002 and rms < 0.01 < rms0, (k1, rms, rms0)
 
 
+def test_radial_k1_and_k2_together_from_straight_lines():
+    """A lens with a k2 term: k1 alone is biased and leaves a misfit; the two-term fit
+    recovers both and straightens the crossings."""
+    from rtdefocus.calib.homography import estimate_radial_k1, estimate_radial_k12
+
+    size = (640, 480)
+    gx, gy = np.meshgrid(np.arange(10, 400, 20.0), np.arange(10, 300, 20.0))
+    proj = np.column_stack([gx.ravel(), gy.ravel()])
+    H = np.array([[1.5, 0.05, 20], [0.02, 1.5, 15], [1e-4, 2e-4, 1]])
+    sets = [(proj, distort_points(apply_h(H, proj), (-0.05, -0.04), size))]
+    k1, rms1, _ = estimate_radial_k1(sets, size)
+    k1b, k2b, rms12 = estimate_radial_k12(sets, size, k1)
+    assert abs(k1 + 0.05) > 0.01 and rms1 > 0.1, (k1, rms1)
+    assert abs(k1b + 0.05) < 0.001 and abs(k2b + 0.04) < 0.001 and rms12 < 0.01, (k1b, k2b)
+
+
 @pytest.mark.parametrize("k1", [-0.05, 0.0])
 def test_geometry_reports_the_lens_k1(k1):
     from rtdefocus.calib.geometry import calibrate_geometry
@@ -326,6 +342,21 @@ def test_geometry_reports_the_lens_k1(k1):
     d = calibrate_geometry(pc).meta["geometry"]["distortion"]
     assert abs(d["k1"] - k1) < 0.01, d
     assert d["applied"] == (k1 != 0.0), d        # an ideal lens is left alone
+    assert d["k2"] == 0.0, d                     # k2 fits only the noise here: not kept
+
+
+def test_geometry_fits_k2_when_it_explains_the_misfit():
+    """A lens with k2 = -0.05: k1 alone leaves ~40 % more misfit than k1 and k2 together, so
+    the stage keeps both, recovers them, and takes them out (the calibration's lens)."""
+    from rtdefocus.calib.geometry import calibrate_geometry
+
+    pc = sim.VirtualProCam("webcam", distortion=(-0.03, -0.05), **SMALL)
+    cal = calibrate_geometry(pc)
+    d = cal.meta["geometry"]["distortion"]
+    assert d["applied"] and abs(d["k1"] + 0.03) < 0.005 and abs(d["k2"] + 0.05) < 0.01, d
+    assert d["rms_px_k12"] < 0.9 * d["rms_px_k1_only"], d
+    assert np.allclose(cal.camera_distortion, (d["k1"], d["k2"]))
+    assert abs(d["residual_k1"]) < 0.003, d       # the undistorted crossings are straight
 
 
 def _homography_error(calib, truth) -> float:
