@@ -67,7 +67,9 @@ def test_capture_budget(preset):
     counts = calibrated(preset).calib.meta["captures"]
     assert counts["radiometry"] + counts["psf"] < 30, counts
     meta = calibrated(preset).calib.meta["psf"]
-    assert counts["psf"] == meta["captures"] == 1 + meta["patterns"] * meta["averages"]
+    # the pilot, the dot patterns, and one white frame at the end (the exposure check)
+    assert counts["psf"] == meta["captures"] == 2 + meta["patterns"] * meta["averages"]
+    assert np.abs(meta["white_drift"]).max() < 0.005, meta["white_drift"]
 
 
 # ----------------------------------------------------------------------------- the field

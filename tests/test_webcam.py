@@ -231,6 +231,35 @@ def test_exposure_drift_during_the_geometry_stage_is_reported_with_the_fix():
         rd.calibrate(pc, stages=("geometry", "radiometry"))
 
 
+def test_exposure_drift_in_a_geometry_only_calibration_is_reported_with_the_fix():
+    """No radiometry stage to check it: the geometry stage's first white frame against its
+    last (``white_end``, no extra capture); exp(0.002 x 15 captures) ~ +3 %."""
+    small = {"projector_size": (240, 180), "camera_size": (360, 270)}
+    steady = rd.calibrate(sim.VirtualProCam("webcam", **small), stages=("geometry",))
+    assert np.abs(steady.meta["geometry"]["white_drift"]).max() < 0.005
+    assert steady.meta["captures"] == {"geometry": steady.meta["geometry"]["captures"]}
+    with pytest.raises(CalibrationError, match=r"exposure changed during the geometry stage.*"
+                                               r"rtdefocus calibrate \.\.\. --lock"):
+        rd.calibrate(sim.VirtualProCam("webcam", exposure_drift=0.002, **small),
+                     stages=("geometry",))
+
+
+def test_exposure_drift_during_the_psf_stage_is_reported_with_the_fix():
+    """The camera holds still through geometry, then its auto-exposure wakes up in the PSF
+    stage (exp(0.003 x ~20 captures) ~ +6 %): the white frame taken after the dots disagrees
+    with the one they were normalised by. (The steady case: tests/test_psf.py's budget test.)"""
+    pc = sim.VirtualProCam("cubicle", projector_size=(240, 180), camera_size=(360, 270))
+
+    def wake_up(stage, done, total):
+        if stage == "psf":
+            pc.exposure_drift = 0.003
+
+    with pytest.raises(CalibrationError, match=r"exposure changed during the psf stage.*"
+                                               r"rtdefocus calibrate \.\.\. --lock"):
+        rd.calibrate(pc, stages=("geometry", "psf"), progress=wake_up)
+    assert pc.exposure_drift == 0.003          # the drift began where the test meant it to
+
+
 def test_an_over_exposed_set_up_is_told_to_lower_the_exposure():
     pc = sim.VirtualProCam("webcam", exposure=3.0, **SMALL)
     with pytest.raises(CalibrationError, match=r"over-exposed.*Lower the camera's exposure"):
@@ -289,6 +318,22 @@ def test_radial_k1_from_straight_lines_on_each_plane():
     assert abs(k1 + 0.08) < 0.002 and rms < 0.01 < rms0, (k1, rms, rms0)
 
 
+def test_radial_k1_and_k2_together_from_straight_lines():
+    """A lens with a k2 term: k1 alone is biased and leaves a misfit; the two-term fit
+    recovers both and straightens the crossings."""
+    from rtdefocus.calib.homography import estimate_radial_k1, estimate_radial_k12
+
+    size = (640, 480)
+    gx, gy = np.meshgrid(np.arange(10, 400, 20.0), np.arange(10, 300, 20.0))
+    proj = np.column_stack([gx.ravel(), gy.ravel()])
+    H = np.array([[1.5, 0.05, 20], [0.02, 1.5, 15], [1e-4, 2e-4, 1]])
+    sets = [(proj, distort_points(apply_h(H, proj), (-0.05, -0.04), size))]
+    k1, rms1, _ = estimate_radial_k1(sets, size)
+    k1b, k2b, rms12 = estimate_radial_k12(sets, size, k1)
+    assert abs(k1 + 0.05) > 0.01 and rms1 > 0.1, (k1, rms1)
+    assert abs(k1b + 0.05) < 0.001 and abs(k2b + 0.04) < 0.001 and rms12 < 0.01, (k1b, k2b)
+
+
 @pytest.mark.parametrize("k1", [-0.05, 0.0])
 def test_geometry_reports_the_lens_k1(k1):
     from rtdefocus.calib.geometry import calibrate_geometry
@@ -297,6 +342,21 @@ def test_geometry_reports_the_lens_k1(k1):
     d = calibrate_geometry(pc).meta["geometry"]["distortion"]
     assert abs(d["k1"] - k1) < 0.01, d
     assert d["applied"] == (k1 != 0.0), d        # an ideal lens is left alone
+    assert d["k2"] == 0.0, d                     # k2 fits only the noise here: not kept
+
+
+def test_geometry_fits_k2_when_it_explains_the_misfit():
+    """A lens with k2 = -0.05: k1 alone leaves ~40 % more misfit than k1 and k2 together, so
+    the stage keeps both, recovers them, and takes them out (the calibration's lens)."""
+    from rtdefocus.calib.geometry import calibrate_geometry
+
+    pc = sim.VirtualProCam("webcam", distortion=(-0.03, -0.05), **SMALL)
+    cal = calibrate_geometry(pc)
+    d = cal.meta["geometry"]["distortion"]
+    assert d["applied"] and abs(d["k1"] + 0.03) < 0.005 and abs(d["k2"] + 0.05) < 0.01, d
+    assert d["rms_px_k12"] < 0.9 * d["rms_px_k1_only"], d
+    assert np.allclose(cal.camera_distortion, (d["k1"], d["k2"]))
+    assert abs(d["residual_k1"]) < 0.003, d       # the undistorted crossings are straight
 
 
 def _homography_error(calib, truth) -> float:

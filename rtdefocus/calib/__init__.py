@@ -8,11 +8,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
+import numpy as np
+
 from ..checks import check_procam
 from ..errors import CalibrationError, InputError, InputTypeError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
 from .diagnose import explain, view_warning
+from .exposure import check_geometry_drift
 from .file import Calibration
 from .geometry import GeometryOptions, calibrate_geometry
 from .psf import PsfOptions, calibrate_psf
@@ -104,6 +107,12 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         try:
             if name == "geometry":
                 calib = st.run(procam, capture=cap, **per_stage[name])
+                if "radiometry" not in chosen:
+                    # The radiometry stage checks the geometry stage's drift with the camera's
+                    # measured response; without it, the stage's own first and last white.
+                    drift = check_geometry_drift(cap, calib)
+                    calib.meta["geometry"]["white_drift"] = \
+                        None if drift is None else np.round(drift, 4).tolist()
             else:
                 st.run(procam, calib, capture=cap, **per_stage[name])
         except CalibrationError as exc:

@@ -36,6 +36,10 @@ class Capturer:
         #: reference :mod:`.diagnose` compares fresh frames with when a stage fails.
         self.first_white: np.ndarray | None = None
         self.first_black: np.ndarray | None = None
+        #: The latest all-white frame (uint8): against ``first_white`` it tells whether the
+        #: camera's exposure drifted over a stage that took both (the geometry stage's
+        #: ``white`` and ``white_end``).
+        self.last_white: np.ndarray | None = None
         self.stage = "capture"
         self._done = 0
         self._total = 0
@@ -76,8 +80,10 @@ class Capturer:
             raise CaptureError(f"capture failed {self.retries + 1} times during {self.stage} "
                                f"(pattern {self._done + 1}): {last}. Check the camera connection "
                                "and that nothing else is using it.") from last
-        if self.first_white is None and pattern.min() == 255:
-            self.first_white = frame.copy()
+        if pattern.min() == 255:
+            self.last_white = frame.copy()
+            if self.first_white is None:
+                self.first_white = frame.copy()
         elif self.first_black is None and pattern.max() == 0:
             self.first_black = frame.copy()
         self.counts[self.stage] = self.counts.get(self.stage, 0) + 1

@@ -1,7 +1,9 @@
-"""Camera exposure checks of the radiometry stage: over- and under-exposure of the white frame,
-and exposure / white-balance drift between two white frames taken apart in time (the
-geometry stage's first frame against the radiometry stage's first, and that one against the
-radiometry stage's last).
+"""Camera exposure checks: over- and under-exposure of the white frame (radiometry stage), and
+exposure / white-balance drift between two white frames taken apart in time: the geometry
+stage's first frame against the radiometry stage's first, that one against the radiometry
+stage's last, and the white frame the PSF stage normalises by against one more taken at the
+stage's end; without the radiometry stage, the geometry stage's first white frame against its
+last (``white_end``).
 
 A webcam's auto-exposure and auto white balance change its gain while the patterns change
 (a dark dot pattern after a white frame brightens the next frames), which bends every ratio
@@ -94,3 +96,36 @@ def check_drift(first: np.ndarray, later: np.ndarray, black: np.ndarray, lit: np
             f"{', '.join(f'{100 * v:+.1f}%' for v in d)}) at its end than at its start. "
             + _LOCK_HINT)
     return d
+
+
+def check_geometry_drift(capture, calib) -> np.ndarray | None:
+    """The geometry stage's drift check, for a calibration without the radiometry stage (which
+    checks the same span with the measured response): the stage's first white frame against
+    its last (``white_end``, already in its sequence), so no extra capture. Returns the change
+    (3,), or None when the stage did not take both frames.
+
+    The camera's response is not measured without the radiometry stage, so the codes are read
+    as sRGB, what webcams send: a linear camera's drift is then overstated about 2x, i.e. the
+    check errs toward reporting an exposure that moved.
+    """
+    from .camera_response import known_response
+    from .lens import lit_mask_observed
+
+    first, last, black = capture.first_white, capture.last_white, capture.first_black
+    if first is None or last is None or black is None:
+        return None
+    f32 = np.float32
+    return check_drift(first.astype(f32), last.astype(f32), black.astype(f32),
+                       lit_mask_observed(calib), known_response("srgb"), stage="geometry")
+
+
+def check_end_white(capture, calib, white: np.ndarray, black: np.ndarray,
+                    camera_lut=1.0, *, stage: str = "psf") -> np.ndarray:
+    """One more white capture at the end of a stage against ``white``, the white frame (camera
+    codes) the stage measured everything against (the PSF stage normalises every dot by it):
+    :func:`check_drift` of the two, the change (3,) returned."""
+    from .lens import lit_mask_observed
+
+    wp, hp = calib.projector_size
+    later = capture(np.full((hp, wp, 3), 255, np.uint8)).astype(np.float32)
+    return check_drift(white, later, black, lit_mask_observed(calib), camera_lut, stage=stage)

@@ -28,7 +28,7 @@ from ..procam import ProCam
 from .capture import Capturer
 from .file import Calibration
 from .geometry_fit import GeometryDetail, check_planes_option, fit_geometry
-from .homography import estimate_radial_k1
+from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
@@ -156,11 +156,14 @@ def _calibration(parts: dict, fit_stats: dict, detail: GeometryDetail, pats: Lin
     # The lens's radial distortion, from how far each plane's crossings are from a homography
     # (in the coordinates given: lens.fit_with_lens undistorts them and fits again if it matters).
     proj, cam, plane, inliers = detail.pts_proj_xy, detail.pts_cam_xy, detail.plane, detail.inliers
-    k1, rms_k1, rms_0 = estimate_radial_k1(
-        [(proj[(plane == p) & inliers], cam[(plane == p) & inliers])
-         for p in range(int(stats["n_planes"]))], camera_size)
+    sets = [(proj[(plane == p) & inliers], cam[(plane == p) & inliers])
+            for p in range(int(stats["n_planes"]))]
+    k1, rms_k1, rms_0 = estimate_radial_k1(sets, camera_size)
+    # k1 and k2 together: lens.fit_with_lens keeps k2 only where it clearly explains more.
+    k1b, k2b, rms_k12 = estimate_radial_k12(sets, camera_size, k1)
     stats["distortion"] = {"k1": round(k1, 4), "rms_px": round(rms_k1, 4),
-                           "rms_px_without": round(rms_0, 4)}
+                           "rms_px_without": round(rms_0, 4),
+                           "k12": [round(k1b, 5), round(k2b, 5)], "rms_px_k12": round(rms_k12, 4)}
     calib = Calibration(projector_size=pats.projector_size, camera_size=camera_size, **parts)
     stats["seconds"] = round(time.perf_counter() - t_start, 2)
     stats["kinks_cam"] = [[round(float(v), 2) for v in kk.point_cam_xy] for kk in detail.kinks]

@@ -139,6 +139,27 @@ def fit_homography(pts_proj_xy: np.ndarray, pts_cam_xy: np.ndarray, *, threshold
 
 
 
+def radial_rms(sets: list[tuple[np.ndarray, np.ndarray]], k: tuple[float, float],
+               camera_size: tuple[int, int]) -> float:
+    """RMS (camera px, over all planes) of each plane's crossings from its own homography once
+    the camera points are undistorted with the lens ``k`` = (k1, k2); planes with fewer than 8
+    crossings are left out. ``sets``: per plane, (projector xy (n, 2), camera xy (n, 2))."""
+    from .planar import undistort_points
+
+    sq, n = 0.0, 0
+    for proj, cam in sets:
+        if len(proj) < 8:
+            continue
+        und = undistort_points(cam, k, camera_size)
+        H, _ = cv2.findHomography(np.ascontiguousarray(proj, np.float64),
+                                  np.ascontiguousarray(und, np.float64), 0)
+        if H is None or not np.isfinite(H).all():
+            return float("inf")
+        sq += float((np.linalg.norm(apply_h(H, proj) - und, axis=1) ** 2).sum())
+        n += len(proj)
+    return math.sqrt(sq / max(n, 1))
+
+
 def estimate_radial_k1(sets: list[tuple[np.ndarray, np.ndarray]], camera_size: tuple[int, int],
                        bound: float = 0.3) -> tuple[float, float, float]:
     """The camera's radial distortion k1 (model of :func:`~.planar.distort_points`) from the
@@ -146,29 +167,33 @@ def estimate_radial_k1(sets: list[tuple[np.ndarray, np.ndarray]], camera_size: t
 
     A projected line is straight on a plane, so the camera points of a plane are a homography
     of their projector points once undistorted: k1 is the value that makes each plane's
-    homography fit best (a 1-D search; the homographies by DLT + LM on the given points).
-    ``sets``: per plane, (projector xy (n, 2), camera xy (n, 2)) — the RANSAC inliers.
+    homography fit best (a 1-D search of :func:`radial_rms`; the homographies by DLT + LM on
+    the given points). ``sets``: per plane, (projector xy (n, 2), camera xy (n, 2)) — the
+    RANSAC inliers.
 
     Returns (k1, rms at k1, rms at k1 = 0), the RMS in camera px over all planes.
     """
     from scipy.optimize import minimize_scalar
 
-    from .planar import undistort_points
+    res = minimize_scalar(lambda k1: radial_rms(sets, (k1, 0.0), camera_size),
+                          bounds=(-bound, bound), method="bounded", options={"xatol": 1e-4})
+    return float(res.x), float(res.fun), radial_rms(sets, (0.0, 0.0), camera_size)
 
-    def cost(k1: float) -> float:
-        sq, n = 0.0, 0
-        for proj, cam in sets:
-            if len(proj) < 8:
-                continue
-            und = undistort_points(cam, (k1, 0.0), camera_size)
-            H, _ = cv2.findHomography(np.ascontiguousarray(proj, np.float64),
-                                      np.ascontiguousarray(und, np.float64), 0)
-            if H is None or not np.isfinite(H).all():
-                return float("inf")
-            sq += float((np.linalg.norm(apply_h(H, proj) - und, axis=1) ** 2).sum())
-            n += len(proj)
-        return math.sqrt(sq / max(n, 1))
 
-    res = minimize_scalar(cost, bounds=(-bound, bound), method="bounded",
-                          options={"xatol": 1e-4})
-    return float(res.x), float(res.fun), cost(0.0)
+def estimate_radial_k12(sets: list[tuple[np.ndarray, np.ndarray]], camera_size: tuple[int, int],
+                        k1: float = 0.0, bound: float = 0.3) -> tuple[float, float, float]:
+    """(k1, k2, rms) of the lens that makes each plane's crossings a homography best, both
+    terms fitted together (a 2-D simplex search of :func:`radial_rms` from (``k1``, 0), each
+    term within ``bound``). With k1 alone a lens whose k2 is not 0 leaves a misfit that grows
+    towards the corners (as r⁴) and biases k1; this fit removes both."""
+    from scipy.optimize import minimize
+
+    def cost(k: np.ndarray) -> float:
+        if np.abs(k).max() > bound:
+            return float("inf")
+        return radial_rms(sets, (float(k[0]), float(k[1])), camera_size)
+
+    res = minimize(cost, np.array([k1, 0.0]), method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-5, "initial_simplex":
+                            np.array([[k1, 0.0], [k1 + 0.02, 0.0], [k1, 0.02]])})
+    return float(res.x[0]), float(res.x[1]), float(res.fun)

@@ -13,8 +13,9 @@ is in *observed* pixels. So:
   (:func:`undistort_image`, :func:`ideal_view`).
 
 :func:`fit_with_lens` is the geometry stage's lens step: fit with k = 0, estimate k1 from how far
-each plane's crossings are from a homography (:func:`~.homography.estimate_radial_k1`), and when
-that matters undistort the detection and fit again.
+each plane's crossings are from a homography (:func:`~.homography.estimate_radial_k1`; k2 too
+where it clearly explains more, :func:`~.homography.estimate_radial_k12`), and when that matters
+undistort the detection and fit again.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["lens_k", "ideal_points", "observed_points", "observed_maps", "undistort_image",
            "ideal_view", "lit_mask_observed", "undistort_line", "undistort_detection",
-           "fit_with_lens", "MIN_EFFECT_PX", "MIN_EXPLAINED"]
+           "fit_with_lens", "max_displacement", "MIN_EFFECT_PX", "MIN_EXPLAINED"]
 
 #: Largest displacement (camera px, at the frame corners) of a distortion that is not worth
 #: correcting: below it the estimate is within its own noise and a refit only costs time.
@@ -167,6 +168,15 @@ def undistort_detection(det: LineDetection, k: tuple[float, float],
         stats=dict(det.stats))
 
 
+def max_displacement(k, camera_size: tuple[int, int]) -> float:
+    """Largest displacement (camera px) the radial lens ``k`` = (k1, k2) makes within the
+    frame: r (k1 r² + k2 r⁴) times the model's radius scale, over 0 <= r <= 1 (the corners)."""
+    from .planar import distortion_scale
+
+    r = np.linspace(0.0, 1.0, 101)
+    return float(np.abs(r * (k[0] * r ** 2 + k[1] * r ** 4)).max() * distortion_scale(camera_size)[2])
+
+
 # --------------------------------------------------------------------------- the geometry step
 class _HoldWarnings(logging.Filter):
     """Holds back the warnings a logger emits (the first, distorted fit's "only 80 % of the
@@ -203,14 +213,17 @@ def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetecti
 
     ``fit(detection) -> Calibration`` is the geometry stage's fit (kinks, fold, homographies);
     it reports, in ``meta["geometry"]["distortion"]``, the k1 that best straightens its planes'
-    crossings (:func:`~.homography.estimate_radial_k1`). When that k1 moves the frame corners by
-    more than ``min_effect_px`` and removes at least :data:`MIN_EXPLAINED` of the crossings'
-    RMS misfit (and ``correct``), the detection is undistorted with it
-    (:func:`undistort_detection`) and fitted again; ``calib.camera_distortion`` is set to
-    (k1, 0) and the homographies, fold, outline (and so the display rectangle) are in ideal
-    camera pixels. ``meta["geometry"]["distortion"]`` then holds ``k1``, ``k2``, ``applied``,
-    the corner displacement ``corner_px``, the RMS without / with the model and the residual
-    k1 the second fit still sees.
+    crossings (:func:`~.homography.estimate_radial_k1`) and the (k1, k2) that do it together
+    (:func:`~.homography.estimate_radial_k12`). The lens is (k1, k2) when k2 removes at least
+    :data:`MIN_EXPLAINED` of the misfit k1 alone leaves and moves some point of the frame by
+    more than ``min_effect_px``, else (k1, 0). When that lens moves the frame by more than
+    ``min_effect_px`` and removes at least :data:`MIN_EXPLAINED` of the crossings' RMS misfit
+    (and ``correct``), the detection is undistorted with it (:func:`undistort_detection`) and
+    fitted again; ``calib.camera_distortion`` is set to (k1, k2) and the homographies, fold,
+    outline (and so the display rectangle) are in ideal camera pixels.
+    ``meta["geometry"]["distortion"]`` then holds ``k1``, ``k2``, ``applied``, the largest
+    displacement ``corner_px``, the RMS without / with the model, the k1-only and the two-term
+    estimates with their RMS, and the residual k1 the second fit still sees.
 
     A lens strong enough that the first fit fails (too few crossings fit one homography) is
     estimated from ``rough(detection)`` (the same fit with a looser inlier distance) instead;
@@ -218,7 +231,6 @@ def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetecti
     (logger ``logger``) are held back, and repeated only when no correction follows.
     """
     from ..errors import CalibrationError
-    from .planar import distortion_scale
 
     first_error = None
     try:
@@ -237,24 +249,31 @@ def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetecti
             raise exc from None
     d0 = dict(calib.meta["geometry"].get("distortion", {}))
     k1 = float(d0.get("k1", 0.0))
-    corner_px = abs(k1) * distortion_scale(camera_size)[2]
-    info = {"k1": round(k1, 5), "k2": 0.0, "corner_px": round(corner_px, 3),
-            "rms_px_without": d0.get("rms_px_without"), "rms_px": d0.get("rms_px"),
-            "applied": False}
     rms0, rms1 = d0.get("rms_px_without"), d0.get("rms_px")
+    k, rms_k = (k1, 0.0), rms1
+    # k2 too, where it clearly explains more of the misfit than k1 alone (and moves some point
+    # of the frame visibly): with k2 = 0 in truth the 2-term fit only fits the noise.
+    k12, rms12 = d0.get("k12"), d0.get("rms_px_k12")
+    if k12 is not None and rms12 is not None and rms1 is not None and \
+            rms12 < (1.0 - MIN_EXPLAINED) * rms1 and \
+            max_displacement((0.0, float(k12[1])), camera_size) > min_effect_px:
+        k, rms_k = (float(k12[0]), float(k12[1])), rms12
+    corner_px = max_displacement(k, camera_size)
+    info = {"k1": round(k[0], 5), "k2": round(k[1], 5), "corner_px": round(corner_px, 3),
+            "rms_px_without": rms0, "rms_px": rms_k, "k1_only": round(k1, 5),
+            "rms_px_k1_only": rms1, "k12_fit": k12, "rms_px_k12": rms12, "applied": False}
     # Worth it when the lens moves the corners visibly *and* explains part of the crossings'
     # misfit: on an ideal lens k1 is the estimate's noise and leaves the misfit as it was.
-    explains = rms0 is not None and rms1 is not None and rms1 < (1.0 - MIN_EXPLAINED) * rms0
+    explains = rms0 is not None and rms_k is not None and rms_k < (1.0 - MIN_EXPLAINED) * rms0
     if correct and corner_px > min_effect_px and explains:
-        k = (k1, 0.0)
         ideal = undistort_detection(detection, k, camera_size)
         calib = fit(ideal)
         residual = calib.meta["geometry"].get("distortion", {})
         info.update(applied=True, residual_k1=residual.get("k1"),
                     rms_px=residual.get("rms_px_without"), first_fit_failed=first_error is not None)
         calib.camera_distortion = np.array(k, np.float64)
-        log.info("geometry: lens k1 = %.4f (%.2f px at the corners) taken out; RMS %s -> %s px",
-                 k1, corner_px, info["rms_px_without"], info["rms_px"])
+        log.info("geometry: lens k1 = %.4f, k2 = %.4f (%.2f px at most) taken out; RMS %s -> %s px",
+                 k[0], k[1], corner_px, info["rms_px_without"], info["rms_px"])
     else:
         held.release()
         if first_error is not None:

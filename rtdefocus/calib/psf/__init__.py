@@ -41,7 +41,9 @@ The stage, step by step (every step only calls ``capture``):
    only inside a disc bounded by the pilot's radius (which suppresses the noise tails and
    needs no black frame: the background is fitted around each dot from the same averaged
    captures). With ~2.5 camera pixels per projector pixel this is well determined, sub-pixel,
-   and energy-consistent (camera values are radiance).
+   and energy-consistent (camera values are radiance). Then one white capture, against the
+   white frame the dots were normalised by: a camera whose exposure drifted over the stage
+   stops the calibration with the fix (:func:`~..exposure.check_end_white`).
 5. **Averaging and clean-up**: each raw LS kernel (divided by its energy: the albedo is α's
    business) is averaged with its plane's kernels of the same predicted blur nearby
    (:func:`iso_average`): along a line of equal blur a thin lens's kernel is the same, so this
@@ -115,7 +117,8 @@ class PsfOptions:
         equal blur (px), and largest sample spacing along and across them (px).
     dense_spacing : dense layout grid step (px).
     edge_inset : sample distance from the frame edges (px).
-    psf_captures : capture budget of the stage when ``averages`` is not given.
+    psf_captures : capture budget of the stage when ``averages`` is not given (one more
+        white frame at the stage's end checks that the exposure held still).
     dot_size : ``"auto"`` or the side of the square dot (px). 1 px measures the kernel
         directly; a larger dot gives dot_size² more light and is deconvolved by the LS model
         (with a small ridge). ``"auto"`` uses 1 px where the predicted blur is small (bright
@@ -161,7 +164,8 @@ class Dots:
     index: dict          # (x, y) -> row of ``meas``
     meas: Measurement
     averages: int
-    captures: int        # the stage's captures so far (pilot + dots)
+    captures: int        # the stage's captures so far (pilot + dots + the end white frame)
+    white_drift: list | None = None   # the white frame's change over the stage (R, G, B)
 
 
 @dataclass
@@ -249,8 +253,22 @@ class PsfRun:
         log.info("psf: %d dots in %d patterns x %d averages; radius %.2f..%.2f px; snr %.0f..%.0f",
                  len(upts_a), meas.patterns, averages, meas.radius.min(), meas.radius.max(),
                  meas.snr.min(), meas.snr.max())
+        drift = self.end_drift()
         total = capture.counts.get("psf", 0) - self.first_count
-        return Dots(uniq, meas, averages, int(total))
+        return Dots(uniq, meas, averages, int(total), np.round(drift, 4).tolist())
+
+    def end_drift(self) -> np.ndarray:
+        """One white capture after the dots against the white frame every dot was normalised
+        by (the radiometry stage's, or this stage's own): an auto-exposure that drifted over
+        the stage raises :class:`CalibrationError` naming the fix (:mod:`..exposure`)."""
+        from ..exposure import check_end_white
+        from ..radiometry import cached_frame_count, mean_frame
+
+        wp, hp = self.calib.projector_size
+        white, black = (mean_frame(self.capture, key, np.full((hp, wp, 3), value, np.uint8),
+                                   cached_frame_count(self.capture, key))
+                        for key, value in (("white", 255), ("black", 0)))
+        return check_end_white(self.capture, self.calib, white, black, self.camera_gamma)
 
     def fill(self, target: Calibration, key: tuple[str, bool], plan: SamplePlan,
              dots: Dots) -> Calibration:
@@ -292,7 +310,7 @@ class PsfRun:
             "layout": key[0], "cross_fold": key[1], "samples": int(len(plan)),
             "kinds": {k: int((plan.kinds == k).sum()) for k in np.unique(plan.kinds)},
             "window": int(psfs.shape[1]), "patterns": meas.patterns, "averages": dots.averages,
-            "captures": dots.captures,
+            "captures": dots.captures, "white_drift": dots.white_drift,
             "dot_sizes": {str(d): int((meas.dots[sel] == d).sum()) for d in np.unique(meas.dots)},
             "radius_range": [round(min(equivalent_radius(p) for p in psfs), 3),
                              round(max(equivalent_radius(p) for p in psfs), 3)],
