@@ -194,7 +194,8 @@ class PsfRun:
         dot_sizes(np.zeros(1), options.dot_size)       # validates
         # The camera's inverse response from the radiometry stage (linear when not measured).
         camera_gamma = calib.camera_lut if calib.camera_lut is not None else 1.0
-        capture.begin("psf", options.psf_captures)
+        # + 1: the white frame taken after the dots for the exposure-drift check.
+        capture.begin("psf", options.psf_captures + 1)
         n0 = capture.counts.get("psf", 0)
         norm = frame_normaliser(calib, capture, camera_gamma)
         # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
