@@ -2,7 +2,10 @@
 //
 // Per projector pixel (x, y): plane p from the plane layout (PlaneLayout.label: the plane the
 // pixel is least outside of, ties to the higher index; with two planes p = 0 where
-// fold·(x, y, 1) < 0, else 1); camera point H_cam_from_proj[p]·(x, y, 1); input pixel u = (xc − x0 + 0.5)·W/w − 0.5 (same for v);
+// fold·(x, y, 1) < 0, else 1), read from a label texture the size of the projector frame that
+// Python fills with exactly those labels (so shader and reference agree on every pixel, and a
+// fragment pays one texel fetch whatever the number of planes); camera point
+// H_cam_from_proj[p]·(x, y, 1); input pixel u = (xc − x0 + 0.5)·W/w − 0.5 (same for v);
 // bilinear, trilinear when minified, black outside (sampler: CLAMP_TO_BORDER, border 0).
 //
 // Python (rtdefocus/gl/warp.py) folds the whole chain into one 3×3 matrix per plane, in float64:
@@ -10,10 +13,9 @@
 //   (x, y) = (fx − 0.5, Hp − 0.5 − fy) (GL's origin is bottom-left, pixel centres at +0.5), and
 //   A: camera pixel -> normalised texture coordinate s = (xc − x0 + 0.5)/w = (u + 0.5)/W, whose
 //   texel centres (i + 0.5)/W are the input's pixel centres, so GL_LINEAR is exactly the
-//   bilinear of the reference. u_folds_frag[j] = fold_j·B are the fold lines in the same
-//   coordinates; u_sign[p * MAX_FOLDS + j] is +1 / -1 where plane p lies on fold j's positive /
-//   negative side, 0 where fold j does not bound plane p. MAX_PLANES and MAX_FOLDS come from
-//   Python (-D defines prepended at build time) so the arrays match calib.planar.MAX_PLANES.
+//   bilinear of the reference. u_labels holds the plane of each fragment, row 0 at the bottom
+//   like gl_FragCoord. MAX_PLANES comes from Python (a -D define prepended at build time) so
+//   the matrix array matches calib.planar.MAX_PLANES.
 // Texture row 0 is the input's top row (uploaded as is), so t grows downwards like v.
 // Output: colour in the input's encoding; read back top row first by gl.runtime.read_rgb.
 // Draw: one full-screen triangle, 3 vertices, no attributes.
@@ -29,37 +31,16 @@ void main() {
 #elif defined FRAGMENT_SHADER
 
 uniform sampler2D u_image;        // input, RGB8, mip levels built on the CPU when minified
+uniform usampler2D u_labels;      // plane of each projector pixel (R8UI, no filtering)
 uniform mat3 u_st_from_frag[MAX_PLANES];    // per plane: (fx, fy, 1) -> homogeneous (s, t, 1)
-uniform vec3 u_folds_frag[MAX_FOLDS];       // fold lines in fragment coordinates
-uniform float u_sign[MAX_PLANES * MAX_FOLDS];
-uniform int u_n_planes;
-uniform int u_n_folds;
 uniform vec2 u_image_size;        // (W, H) of level 0, texels per unit of s, t
 
 out vec4 f_color;
 
-int plane_of(vec3 frag) {
-    float side[MAX_FOLDS];
-    for (int j = 0; j < u_n_folds; ++j) side[j] = dot(u_folds_frag[j], frag);
-    int best = 0;
-    float best_out = 0.0;
-    for (int p = 0; p < u_n_planes; ++p) {
-        float outside = -3.0e38;          // how far outside plane p (<= 0 inside)
-        for (int j = 0; j < u_n_folds; ++j) {
-            float s = u_sign[p * MAX_FOLDS + j];
-            if (s != 0.0) outside = max(outside, -s * side[j]);
-        }
-        if (p == 0 || outside <= best_out) {
-            best = p;
-            best_out = outside;
-        }
-    }
-    return best;
-}
-
 void main() {
     vec3 frag = vec3(gl_FragCoord.xy, 1.0);
-    mat3 M = u_st_from_frag[plane_of(frag)];
+    uint plane = texelFetch(u_labels, ivec2(gl_FragCoord.xy), 0).r;
+    mat3 M = u_st_from_frag[min(plane, uint(MAX_PLANES - 1))];
     vec3 q = M * frag;
     if (!(q.z > 0.0)) {                       // beyond the homography's horizon: no surface
         f_color = vec4(0.0, 0.0, 0.0, 1.0);

@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from ..calib.planar import MAX_FOLDS, MAX_PLANES
+from ..calib.planar import MAX_PLANES
 from ..errors import DeviceError, InputError, InputTypeError
 from ..reference.warp import (
     check_image,
@@ -80,13 +80,16 @@ class GLWarp:
             raise InputError(f"projector_size must be positive (width, height); got {projector_size}")
         self.projector_size = (wp, hp)
         self.ctx = ctx
-        self.program = load_program(ctx, "warp.glsl", {"MAX_PLANES": MAX_PLANES,
-                                                        "MAX_FOLDS": MAX_FOLDS})
+        self.program = load_program(ctx, "warp.glsl", {"MAX_PLANES": MAX_PLANES})
         self.vao = ctx.vertex_array(self.program, [])
         # CLAMP_TO_BORDER with a black border = cv2's BORDER_CONSTANT 0, on every mip level.
         self.sampler = ctx.sampler(repeat_x=False, repeat_y=False, border_color=(0.0, 0.0, 0.0, 0.0),
                                    filter=(moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR))
         self.program["u_image"].value = 0
+        self.program["u_labels"].value = 1
+        # The plane of every projector pixel, rows bottom-up as GL counts them (R8UI).
+        self.labels = ctx.texture((wp, hp), 1, dtype="u1", alignment=1)
+        self.labels.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.texture = None
         self.fbo = None
         self.n_levels = 0
@@ -97,23 +100,14 @@ class GLWarp:
     def _configure(self, H_cam_from_proj, fold_proj, rect, input_size) -> None:
         H, layout, r, psize = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
                                                 self.projector_size)
-        n, m = layout.n_planes, layout.n_folds
         M = np.zeros((MAX_PLANES, 3, 3))
-        M[:n] = st_from_frag_matrices(H, r, psize)
-        hp = psize[1]
-        # fold · (x, y, 1) with (x, y) = (fx − 0.5, Hp − 0.5 − fy): the same lines in fragment
-        # coordinates.
-        folds = np.zeros((MAX_FOLDS, 3))
-        folds[:m] = layout.folds @ np.array([[1.0, 0.0, -0.5], [0.0, -1.0, hp - 0.5],
-                                             [0.0, 0.0, 1.0]])
-        signs = np.zeros((MAX_PLANES, MAX_FOLDS))
-        signs[:n, :m] = layout.signs
+        M[:layout.n_planes] = st_from_frag_matrices(H, r, psize)
         # GLSL mat3 is column-major: upload each matrix transposed.
         self.program["u_st_from_frag"].write(np.ascontiguousarray(M.transpose(0, 2, 1), dtype="f4"))
-        self.program["u_folds_frag"].write(np.ascontiguousarray(folds, dtype="f4"))
-        self.program["u_sign"].write(np.ascontiguousarray(signs, dtype="f4"))
-        self.program["u_n_planes"].value = n
-        self.program["u_n_folds"].value = m
+        wp, hp = psize
+        ys, xs = np.mgrid[0:hp, 0:wp]
+        labels = layout.label(xs.astype(np.float64), ys.astype(np.float64)).astype(np.uint8)
+        self.labels.write(np.ascontiguousarray(labels[::-1]), alignment=1)
         self.program["u_image_size"].value = tuple(float(v) for v in input_size)
         lod = warp_lod(H, layout, r, input_size, psize, step=LOD_STEP)
         max_lod = float(np.nanmax(lod)) if np.isfinite(lod).any() else 0.0
@@ -159,6 +153,7 @@ class GLWarp:
         target.use()
         self.ctx.viewport = (0, 0, *self.projector_size)
         self.texture.use(0)
+        self.labels.use(1)
         self.sampler.use(0)
         self.vao.render(mode=self.ctx.TRIANGLES, vertices=3)
         self.sampler.clear(0)
@@ -192,10 +187,10 @@ class GLWarp:
 
     def release(self) -> None:
         """Free the GL objects (the context itself stays)."""
-        for obj in (self.fbo, self.texture, self.sampler, self.vao, self.program):
+        for obj in (self.fbo, self.texture, self.labels, self.sampler, self.vao, self.program):
             if obj is not None:
                 obj.release()
-        self.fbo = self.texture = None
+        self.fbo = self.texture = self.labels = None
 
 
 def _planes_key(planes):
