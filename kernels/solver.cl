@@ -9,6 +9,8 @@
  *   axpy           x <- x + a y   (moving back along the chord of a clamped step)
  *   fista_step     P_out = clamp(y - step (G + beta (G - G_prev)), 0, 1),  y = P + beta (P - P_prev)
  *                  (the gradient at y by linearity from the gradients at P_k and P_k-1)
+ *   fista_set_d, fista_decide, fista_undo
+ *                  FISTA's restart test on the device (no read-back per iteration; see there)
  *   reduce_partials  second stage of every reduction (first stage: in these kernels / metric.cl)
  *   decode_lut     uint8 (H, W, 3) codes -> planar linear light through the response LUT (+ headroom)
  *   encode_lut     planar linear P -> uint8 (H, W, 3) codes through the inverse response
@@ -69,6 +71,15 @@ inline float vsum(const vecf v) { return v; }
 #else
 #error "VEC must be 16 or 1"
 #endif
+
+/* The FISTA state vector's slots (fista_decide). */
+#define S_D 0
+#define S_THETA 1
+#define S_BETA 2
+#define S_STEP 3
+#define S_ACCEPT 4
+#define S_RESTARTS 5
+#define S_LOG 8
 
 /* Element index of chunk j of this work-item. */
 #define CHUNK(j) (((size_t)get_group_id(0) * WG * ITEMS + (size_t)(j) * WG + get_local_id(0)) * VEC)
@@ -135,14 +146,20 @@ void axpy(__global float *restrict x, __global const float *restrict y, const fl
 }
 
 /* P_out = clamp(y - step g_y, 0, 1) (PRECOND: step pc g_y) with y = P + beta (P - P_prev), g_y = G + beta (G - G_prev)
- * (P_prev and G_prev are not read when beta == 0; P_out distinct from the inputs).
+ * (P_prev and G_prev are not read when beta == 0; P_out distinct from the inputs); with
+ * from_state != 0, beta and step are read from the device state (fista_decide) instead.
  * partials: [0] sum (P_out - P)^2, [1] sum P_out^2. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void fista_step(__global const float *restrict P, __global const float *restrict P_prev,
                 __global const float *restrict G, __global const float *restrict G_prev,
-                const float beta, const float step, __global const float *restrict pc,
-                __global float *restrict P_out, __global float *restrict partials, const int n)
+                float beta, float step, __global const float *restrict pc,
+                __global float *restrict P_out, __global float *restrict partials, const int n,
+                __global const float *restrict state, const int from_state)
 {
+    if (from_state) {
+        beta = state[S_BETA];
+        step = state[S_STEP];
+    }
     __local float4 scratch[WG];
     vecf a0 = (vecf)(0.0f), a1 = a0;
     for (int j = 0; j < ITEMS; ++j) {
@@ -164,6 +181,73 @@ void fista_step(__global const float *restrict P, __global const float *restrict
         a1 += pn * pn;
     }
     store_partials(partials, wg_sum4(scratch, (float4)(vsum(a0), vsum(a1), 0.0f, 0.0f), WG), 2);
+}
+
+/* FISTA's function-value restart on the device, so that an iteration needs no read-back
+ * (rtdefocus.compensate.solvers; NumPy twin NumpyOps.fista_decide). state: float32
+ * [S_D, S_THETA, S_BETA, S_STEP, S_ACCEPT, S_RESTARTS, -, -, log...]: the distance at the
+ * current iterate, the momentum, the step 2/L, whether the last step was accepted, the count of
+ * rejected steps, and log[k] the distance after step k (log[0]: at the start).
+ * fista_set_d: state[S_D] = log[0] = the sum of the metric's partials (one work-group).
+ * fista_decide: d_new = that sum (the same order as reduce_partials); a step that increases d is
+ * rejected (S_ACCEPT = 0; theta = 1, beta = 0; if beta was already 0, L doubles: step halves),
+ * else d = d_new and theta' = (1 + sqrt(1 + 4 theta^2)) / 2, beta = (theta - 1) / theta';
+ * log[1 + k] = d. fista_undo: where the step was rejected, copy P -> P_out and q -> q_out, so
+ * that the host rotates its buffers as if every step were accepted. */
+inline float sum_partials(__local float4 *scratch, __global const float *restrict partials,
+                          const int n_groups)
+{
+    float acc = 0.0f;
+    for (int g = get_local_id(0); g < n_groups; g += WG) acc += partials[g];
+    return wg_sum4(scratch, (float4)(acc, 0.0f, 0.0f, 0.0f), WG).x;
+}
+
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void fista_set_d(__global const float *restrict partials, const int n_groups,
+                 __global float *restrict state)
+{
+    __local float4 scratch[WG];
+    const float d = sum_partials(scratch, partials, n_groups);
+    if (get_local_id(0) == 0) state[S_D] = state[S_LOG] = d;
+}
+
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void fista_decide(__global const float *restrict partials, const int n_groups,
+                  __global float *restrict state, const int k)
+{
+    __local float4 scratch[WG];
+    const float d_new = sum_partials(scratch, partials, n_groups);
+    if (get_local_id(0) != 0) return;
+    const float d = state[S_D], theta = state[S_THETA], beta = state[S_BETA];
+    if (d_new > d) {
+        state[S_ACCEPT] = 0.0f;
+        state[S_RESTARTS] += 1.0f;
+        if (beta == 0.0f) state[S_STEP] *= 0.5f;
+        state[S_THETA] = 1.0f;
+        state[S_BETA] = 0.0f;
+        state[S_LOG + 1 + k] = d;
+    } else {
+        const float theta_next = (1.0f + sqrt(1.0f + 4.0f * theta * theta)) / 2.0f;
+        state[S_ACCEPT] = 1.0f;
+        state[S_D] = d_new;
+        state[S_BETA] = (theta - 1.0f) / theta_next;
+        state[S_THETA] = theta_next;
+        state[S_LOG + 1 + k] = d_new;
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void fista_undo(__global const float *restrict state, __global const float *restrict P,
+                __global float *restrict P_out, __global const float *restrict q,
+                __global float *restrict q_out, const int n)
+{
+    if (state[S_ACCEPT] != 0.0f) return;
+    for (int j = 0; j < ITEMS; ++j) {
+        const size_t i = CHUNK(j);
+        if (i >= (size_t)n) break;
+        vst(P_out, i, n, vld(P, i, n));
+        vst(q_out, i, n, vld(q, i, n));
+    }
 }
 
 /* dst = clamp(src, 0, 1). */
