@@ -391,13 +391,39 @@ inline void carry_pixel(__global const float *restrict src, __global const float
 
 #if VEC == 16
 /* 16 lanes of p[idx[k]] (a CPU has no cheaper gather; the loop is what LLVM vectorises). */
-inline float16 gather16(__global const float *restrict p, const int16 idx)
+inline float16 gather16(__global const float *restrict p, const int16 i)
 {
-    int ii[16];
-    float v[16];
-    vstore16(idx, 0, ii);
-    for (int k = 0; k < 16; ++k) v[k] = p[ii[k]];
-    return vload16(0, v);
+    return (float16)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7],
+                     p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
+}
+
+inline int hmin16(const int16 v)
+{
+    const int8 a = min(v.lo, v.hi);
+    const int4 b = min(a.lo, a.hi);
+    const int2 c = min(b.lo, b.hi);
+    return min(c.x, c.y);
+}
+
+inline int hmax16(const int16 v)
+{
+    const int8 a = max(v.lo, v.hi);
+    const int4 b = max(a.lo, a.hi);
+    const int2 c = max(b.lo, b.hi);
+    return max(c.x, c.y);
+}
+
+/* The left and right taps of 16 lanes whose row starts at p + o0 (lanes with hi_row: p + o1),
+ * lane k reading column k (hi_col: k + 1) and the next one. */
+inline void row_taps(__global const float *restrict p, const int o0, const int o1,
+                     const int16 hi_col, const int16 hi_row, float16 *left, float16 *right)
+{
+    const float16 a0 = vload16(0, p + o0), a1 = vload16(0, p + o0 + 1), a2 = vload16(0, p + o0 + 2);
+    const float16 b0 = vload16(0, p + o1), b1 = vload16(0, p + o1 + 1), b2 = vload16(0, p + o1 + 2);
+    const float16 l0 = select(a0, a1, hi_col), r0 = select(a1, a2, hi_col);
+    const float16 l1 = select(b0, b1, hi_col), r1 = select(b1, b2, hi_col);
+    *left = select(l0, l1, hi_row);
+    *right = select(r0, r1, hi_row);
 }
 
 /* The CPU shape: 16 consecutive pixels per work-item as float16 vectors (scalar per-pixel code
@@ -433,21 +459,29 @@ inline void carry16(__global const float *restrict src, __global const float *re
         const int16 xa = clamp(x0, 0, W - 1), xb = clamp(x0 + 1, 0, W - 1);
         const int16 ra = clamp(y0, 0, H - 1) * W, rb = clamp(y0 + 1, 0, H - 1) * W;
         const float16 w00 = wy0 * wx0, w01 = wy0 * wx1, w10 = wy1 * wx0, w11 = wy1 * wx1;
-        /* A locally translating picture (a pan: the common case) reads 16 consecutive source
-         * pixels per tap row: vector loads instead of gathers. */
+        /* Smooth motion (a pan, a zoom: the common case) reads the 16 lanes' taps from a few
+         * rows at nearly consecutive columns: each lane's source column is xa.s0 + k + dx with
+         * dx in {dlo, dlo + 1}, its rows in {r0, r1} (+ rstep for the lower tap). Then vector
+         * loads at three column offsets per row and selects replace the 4 x 16 gathers. */
         const int16 iota = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-        const bool run = all(xa == xa.s0 + iota) && all(xb == xa + 1) && all(ra == ra.s0)
-                         && all(rb == rb.s0);
+        const int16 dx = xa - (xa.s0 + iota);
+        const int dlo = hmin16(dx), r0 = hmin16(ra), r1 = hmax16(ra), rstep = rb.s0 - ra.s0;
+        const int16 hi_col = dx != dlo, hi_row = ra != r0;
+        const bool smooth = all(dx == dlo || dx == dlo + 1) && all(xb == xa + 1)
+                            && all(ra == r0 || ra == r1) && all(rb - ra == rstep)
+                            && xa.s0 + dlo + 17 < W;
+        const int c0 = xa.s0 + dlo;
         for (int c = 0; c < 3; ++c) {
             __global const float *sp = src + (size_t)c * npix, *bp = base_prev + (size_t)c * npix;
             float16 v00, v01, v10, v11;
-            if (run) {
-                const int a0 = ra.s0 + xa.s0, b0 = rb.s0 + xa.s0;
-                v00 = vload16(0, sp + a0); v01 = vload16(0, sp + a0 + 1);
-                v10 = vload16(0, sp + b0); v11 = vload16(0, sp + b0 + 1);
+            if (smooth) {
+                row_taps(sp, r0 + c0, r1 + c0, hi_col, hi_row, &v00, &v01);
+                row_taps(sp, r0 + rstep + c0, r1 + rstep + c0, hi_col, hi_row, &v10, &v11);
                 if (base) {
-                    v00 -= vload16(0, bp + a0); v01 -= vload16(0, bp + a0 + 1);
-                    v10 -= vload16(0, bp + b0); v11 -= vload16(0, bp + b0 + 1);
+                    float16 b00, b01, b10, b11;
+                    row_taps(bp, r0 + c0, r1 + c0, hi_col, hi_row, &b00, &b01);
+                    row_taps(bp, r0 + rstep + c0, r1 + rstep + c0, hi_col, hi_row, &b10, &b11);
+                    v00 -= b00; v01 -= b01; v10 -= b10; v11 -= b11;
                 }
             } else {
                 v00 = gather16(sp, ra + xa); v01 = gather16(sp, ra + xb);
