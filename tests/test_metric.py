@@ -362,7 +362,8 @@ def test_fista_restart_on_the_device_matches_numpy_without_read_backs(cl_runtime
         if backend == "opencl":
             for name in ("_reduce", "download", "fista_accepted", "fista_state_read"):
                 f = getattr(s.ops, name)
-                setattr(s.ops, name, lambda *a, _f=f, _n=name, **k: (reads.append(_n), _f(*a, **k))[1])
+                setattr(s.ops, name, lambda *a, _f=f, _n=name, _r=reads, **k:
+                        (_r.append(_n), _f(*a, **k))[1])
         info = s.run(12)
         runs[backend] = (info, s.L / L0, s.ops.download(s.P), reads)
     (i_np, l_np, P_np, _), (i_cl, l_cl, P_cl, reads) = runs["numpy"], runs["opencl"]

@@ -388,6 +388,8 @@ class Compensator:
             return "cold"
         # The motion estimate (OpenCV, which releases the GIL) runs on a helper thread while
         # the device blurs the cold start, which the warm start must beat (a cut uses neither).
+        # (On this 2-core PoCL machine the device's threads already fill the cores: no gain
+        # measured; a GPU blurs while the CPU computes the flow.)
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-motion")
         pending = self._pool.submit(self._motion.estimate, prev, warped)
