@@ -345,6 +345,38 @@ def small_problem():
     return (psfs, idx, wts), target
 
 
+def test_fista_restart_on_the_device_matches_numpy_without_read_backs(cl_runtime, small_problem):
+    """FISTA's restart test runs on the backend (solver.cl fista_decide / fista_undo): with L
+    underestimated 16x, steps are rejected and L doubles on both backends alike, the distance
+    never increases, and the OpenCL run reads back once (its end), not once per iteration."""
+    (psfs, idx, wts), target = small_problem
+    runs = {}
+    for backend in ("numpy", "opencl"):
+        s = make_solver(psfs, idx, wts, METRICS["ycbcr"], backend=backend, solver="fista",
+                        runtime=cl_runtime if backend == "opencl" else None)
+        L0 = s.L
+        s.L = L0 / 16
+        s.ops.upload(target, s.target)
+        s.start_from_target()
+        reads = []
+        if backend == "opencl":
+            for name in ("_reduce", "download", "fista_accepted", "fista_state_read"):
+                f = getattr(s.ops, name)
+                setattr(s.ops, name, lambda *a, _f=f, _n=name, _r=reads, **k:
+                        (_r.append(_n), _f(*a, **k))[1])
+        info = s.run(12)
+        runs[backend] = (info, s.L / L0, s.ops.download(s.P), reads)
+    (i_np, l_np, P_np, _), (i_cl, l_cl, P_cl, reads) = runs["numpy"], runs["opencl"]
+    assert i_np.restarts >= 2 and i_cl.restarts == i_np.restarts
+    assert l_np == l_cl > 1 / 16          # L doubled (from the 16x underestimate)
+    assert i_cl.iterations == i_np.iterations == 12
+    d = np.array(i_cl.distances)
+    assert len(d) == 13 and (np.diff(d) <= 1e-6 * d[:-1]).all() and d[-1] < 0.9 * d[0]
+    assert i_cl.distances == pytest.approx(i_np.distances, rel=TOLERANCES["float32"])
+    assert_close(P_cl, P_np, TOLERANCES["float32"], "FISTA with restarts")
+    assert reads == ["fista_state_read", "download"], reads
+
+
 def check_monotone_in_range(problem, solver, backend, runtime=None):
     (psfs, idx, wts), target = problem
     s = make_solver(psfs, idx, wts, METRICS["ycbcr"], backend=backend, solver=solver,

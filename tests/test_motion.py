@@ -204,13 +204,20 @@ def test_psf_energy_trims_the_kernels_and_keeps_the_result(calib, pictures):
 
 
 # --------------------------------------------------------------------------- carry on the device
-def _motion_case(seed=0, h=37, w=53):
-    """A field, a map reaching past the frame's edges, a valid mask, bases and a fallback."""
+def _motion_case(seed=0, h=37, w=53, kind="noisy"):
+    """A field, a map reaching past the frame's edges, a valid mask, bases and a fallback.
+    The map: ``"noisy"`` (the device's gathers), ``"translation"`` or ``"zoom"`` (smooth: its
+    vector loads, with source columns and rows that step unevenly for the zoom)."""
     rng = np.random.default_rng(seed)
     f = lambda: rng.random((3, h, w), np.float32) * 1.4 - 0.2      # noqa: E731 (outside [0, 1])
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    map_xy = np.stack([gx + 3.3 + rng.normal(0, 1.5, (h, w)),
-                       gy - 2.6 + rng.normal(0, 1.5, (h, w))], -1).astype(np.float32)
+    if kind == "zoom":
+        map_xy = np.stack([gx * 0.97 + 3.3 + 0.02 * gy, gy * 1.03 - 2.6 + 0.05 * gx], -1)
+    else:
+        noise = 1.5 if kind == "noisy" else 0.0
+        map_xy = np.stack([gx + 3.3 + rng.normal(0, noise, (h, w)),
+                           gy - 2.6 + rng.normal(0, noise, (h, w))], -1)
+    map_xy = map_xy.astype(np.float32)
     valid = rng.random((h, w)) > 0.2
     return f(), f(), f(), f(), map_xy, valid
 
@@ -231,15 +238,21 @@ def test_carry_field_is_a_bilinear_remap():
     assert np.array_equal(carry_field(src, None, valid, fb)[:, valid], src[:, valid])
 
 
-@pytest.mark.parametrize("bases,clamp,still", [(True, True, False), (False, False, False),
-                                               (True, True, True)])
-def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still):
-    """``kernels/solver.cl`` carry against its twin: the warm start's fields moved on the device."""
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+@pytest.mark.parametrize("bases,clamp,still,kind", [(True, True, False, "noisy"),
+                                                    (False, False, False, "noisy"),
+                                                    (True, True, False, "translation"),
+                                                    (True, False, False, "zoom"),
+                                                    (True, True, True, "noisy")])
+def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still, kind, variant):
+    """``kernels/solver.cl`` carry against its twin: the warm start's fields moved on the device
+    (both kernel shapes; a noisy map takes the CPU shape's gathers, a translation and a zoom its
+    vector loads, and 53 columns its scalar tail)."""
     from rtdefocus.cl.solve import ClSolveOps
     from rtdefocus.reference.metric import Metric
     from rtdefocus.reference.ops import NumpyOps
 
-    src, bp, bn, fb, map_xy, valid = _motion_case(seed=1)
+    src, bp, bn, fb, map_xy, valid = _motion_case(seed=1, kind=kind)
     h, w = valid.shape
     psfs = np.zeros((1, 3, 3), np.float32)
     psfs[0, 1, 1] = 1.0
@@ -247,7 +260,8 @@ def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still):
     wts[..., 0] = 1.0
     metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
     outs = []
-    for ops in (NumpyOps(psfs, idx, wts, metric), ClSolveOps(cl_runtime, psfs, idx, wts, metric)):
+    for ops in (NumpyOps(psfs, idx, wts, metric),
+                ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant)):
         ops.set_motion(None if still else map_xy, valid)
         arrs = [ops.new() for _ in range(5)]
         for a, host in zip(arrs[:4], (src, bp, bn, fb), strict=True):

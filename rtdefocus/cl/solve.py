@@ -166,6 +166,12 @@ class ClSolveOps:
         self._valid = cla.zeros(self.queue, (h, w), np.uint8)
         self._identity = True
         self._k_reduce = cl.Kernel(prg_r, "reduce_partials")
+        self._k.update({name: cl.Kernel(prg_r, name) for name in ("fista_set_d", "fista_decide")})
+        self._k["fista_undo"] = cl.Kernel(self._prg_s, "fista_undo")
+        # FISTA's state on the device (solver.cl fista_decide): 8 slots, then the distance log;
+        # grown (reallocated) only when a run asks for more iterations than it holds.
+        self._state = None
+        self._state_host = np.zeros(0, np.float32)
         log.debug("ClSolveOps %dx%d on %s: metric local %s, element WG %d x %d items",
                   w, h, runtime.description, self._m_local, wg, items)
 
@@ -214,10 +220,13 @@ class ClSolveOps:
         self._grad(src, dst)
 
     # ------------------------------------------------------------------ metric
-    def metric_residual(self, fp, target, q) -> float:
-        """q = Q (fp − target); returns d = ⟨e, q⟩."""
+    def metric_residual(self, fp, target, q, reduce: bool = True) -> float | None:
+        """q = Q (fp − target); returns d = ⟨e, q⟩ (``reduce=False``: None, the distance left
+        in the partial sums for :meth:`fista_set_d` / :meth:`fista_decide`, no read-back)."""
         self._k["metric_residual"](self.queue, self._m_global, self._m_local, fp.data, target.data,
                                    q.data, self._scale.data, self._partials.data, self._h, self._w)
+        if not reduce:
+            return None
         return float(self._reduce(self._m_groups, 1)[0])
 
     def metric_update(self, fp, fs, t: float, target, fp_out, q) -> float:
@@ -251,18 +260,70 @@ class ClSolveOps:
         self._k["axpy"](self.queue, self._e_global, (self._wg,), x.data, y.data, np.float32(a),
                         np.int32(self.n))
 
-    def fista_step(self, P, P_prev, G, G_prev, beta: float, step: float, P_out,
+    def fista_step(self, P, P_prev, G, G_prev, beta: float | None, step: float | None, P_out,
                    sums: bool = True) -> tuple[float, float]:
         """P_out = clamp(y − step g_y); returns (‖P_out − P‖², ‖P_out‖²), or NaNs without
-        ``sums`` (no second reduction stage and no host synchronisation)."""
+        ``sums`` (no second reduction stage and no host synchronisation). ``beta`` and
+        ``step`` None: both from the device state (:meth:`fista_state_write`, :meth:`fista_decide`)."""
+        from_state = beta is None
+        state = self._state if from_state else self._partials
         self._k["fista_step"](self.queue, self._e_global, (self._wg,), P.data, P_prev.data, G.data,
-                              G_prev.data, np.float32(beta), np.float32(step), self._pc.data,
-                              P_out.data,
-                              self._partials.data, np.int32(self.n))
+                              G_prev.data, np.float32(0.0 if from_state else beta),
+                              np.float32(0.0 if from_state else step), self._pc.data,
+                              P_out.data, self._partials.data, np.int32(self.n), state.data,
+                              np.int32(from_state))
         if not sums:
             return float("nan"), float("nan")
         dd, pp = self._reduce(self._e_groups, 2)
         return float(dd), float(pp)
+
+    # ------------------------------------------------------------------ FISTA on the device
+    # The restart test of FISTA runs on the device (solver.cl fista_decide): a run of k
+    # iterations synchronises with the host once, at its end (fista_state_read). Twin: NumpyOps.
+    def fista_state_write(self, d: float | None, theta: float, beta: float, step: float,
+                          iterations: int) -> None:
+        """Start a run: the state (d None: set on the device by :meth:`metric_residual` with
+        ``reduce=False`` and :meth:`fista_set_d`) with room for ``iterations`` log entries."""
+        size = 8 + 1 + int(iterations)
+        if self._state is None or self._state.size < size:
+            self._state = self._cla.zeros(self.queue, max(size, 64), np.float32)
+            self._state_host = np.zeros(self._state.size, np.float32)
+        h = self._state_host
+        h[:9] = (0.0 if d is None else d, theta, beta, step, 1.0, 0.0, 0.0, 0.0,
+                 0.0 if d is None else d)
+        # Not blocking: the host array is not touched again before fista_state_read's finish.
+        self._cl.enqueue_copy(self.queue, self._state.data, h[:9], is_blocking=False)
+
+    def fista_set_d(self) -> None:
+        """state d = the distance of the last ``metric_residual(..., reduce=False)``."""
+        self._k["fista_set_d"](self.queue, (self._r_wg,), (self._r_wg,), self._partials.data,
+                               np.int32(self._m_groups), self._state.data)
+
+    def fista_decide(self, k: int) -> None:
+        """Accept or reject step ``k`` by the distance of the last
+        ``metric_residual(..., reduce=False)`` (see ``kernels/solver.cl``)."""
+        self._k["fista_decide"](self.queue, (self._r_wg,), (self._r_wg,), self._partials.data,
+                                np.int32(self._m_groups), self._state.data, np.int32(k))
+
+    def fista_undo(self, P, P_out, q, q_out) -> None:
+        """Where the last step was rejected: P_out = P, q_out = q (else nothing)."""
+        self._k["fista_undo"](self.queue, self._e_global, (self._wg,), self._state.data, P.data,
+                              P_out.data, q.data, q_out.data, np.int32(self.n))
+
+    def fista_accepted(self) -> bool:
+        """Whether the last step was accepted (a read-back: only for a tolerance test)."""
+        out = np.zeros(1, np.float32)
+        self._cl.enqueue_copy(self.queue, out, self._state.data, src_offset=4 * 4)
+        return bool(out[0] != 0.0)
+
+    def fista_state_read(self, iterations: int) -> dict:
+        """End of a run (synchronises): d, theta, beta, step, restarts and the distances log
+        (the start and after each of ``iterations`` steps)."""
+        h = self._state_host
+        self._cl.enqueue_copy(self.queue, h[:9 + iterations], self._state.data)
+        return {"d": float(h[0]), "theta": float(h[1]), "beta": float(h[2]),
+                "step": float(h[3]), "restarts": int(round(float(h[5]))),
+                "log": [float(x) for x in h[8:9 + iterations]]}
 
     # ------------------------------------------------------------------ motion
     def set_motion(self, map_xy, valid) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -167,6 +168,7 @@ class Compensator:
         # skips the warp, which is a pure function of the input.
         self._warp_cache: tuple[np.ndarray, np.ndarray] | None = None
         self._motion = MotionEstimator()
+        self._pool: ThreadPoolExecutor | None = None   # the motion estimate's thread (lazily)
         self.last_info: dict = {}
         self._last_flat: dict = {}
         if method in ("ycbcr", "rgb"):
@@ -376,9 +378,6 @@ class Compensator:
         prev = self._prev_warped if warm_start else None
         if prev is not None and np.array_equal(prev, warped):
             return "still"
-        motion = None
-        if prev is not None:
-            motion = self._motion.estimate(prev, warped)
         # The previous target and solver state stay on the device: the warm start moves them
         # there (no read-back, no host resampling).
         s.begin_frame()
@@ -400,11 +399,23 @@ class Compensator:
             self._last_flat = {"surface": "flatten", "brightness": self._surface.brightness,
                                "clipped": above, "clipped_dark": below}
         self._prev_warped = warped.copy()
-        if motion is None or motion.cut:
+        if prev is None:
             s.start_from_target()
-            return "cut" if motion is not None else "cold"
+            return "cold"
+        # The motion estimate (OpenCV, which releases the GIL) runs on a helper thread while
+        # the device blurs the cold start, which the warm start must beat (a cut uses neither).
+        # (On this 2-core PoCL machine the device's threads already fill the cores: no gain
+        # measured; a GPU blurs while the CPU computes the flow.)
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-motion")
+        pending = self._pool.submit(self._motion.estimate, prev, warped)
+        d_cold = s.cold_distance()
+        motion = pending.result()
+        if motion.cut:
+            s.start_from_target()
+            return "cut"
         ops.set_motion(motion.map_xy, motion.valid)
-        return "motion" if s.start_from_motion() else "cold"
+        return "motion" if s.start_from_motion(d_cold) else "cold"
 
 
 def _check_args(calib, *, method, solver, backend, iterations, tol, weights, warp_backend,

@@ -225,13 +225,24 @@ class Solver:
         self.ops.upload(np.clip(P0, 0.0, 1.0), self.P)
         self._forget_p()
 
-    def keep_better_than_cold(self) -> tuple[bool, float, float]:
+    def cold_distance(self) -> float:
+        """d at the cold start ``clamp(target)`` (one blur), left with its blur and residual in
+        the solver's spare buffers for :meth:`keep_better_than_cold`; a caller may run it while
+        another thread does host work (the motion estimate): it waits on the device only."""
+        ops = self.ops
+        ops.clamp_copy(self.target, self._P_alt)
+        ops.forward(self._P_alt, self._fp_alt)
+        return ops.metric_residual(self._fp_alt, self.target, self._q_alt)
+
+    def keep_better_than_cold(self, d_cold: float | None = None) -> tuple[bool, float, float]:
         """Keep the current start P only if it is at least as close as the cold start.
 
-        Evaluates ``d`` at P and at ``clamp(target)`` (one blur each) and leaves the better in
-        P, with its residual ready for :meth:`run`; choosing the cold start drops the momentum.
-        Since every solver step is monotone, the frame then ends no farther from the target
-        than geometry only (the cold start) — whatever the warm start was.
+        Evaluates ``d`` at P and at ``clamp(target)`` (one blur each; ``d_cold`` given: the
+        latter came from :meth:`cold_distance` since the target was set, and P is not in its
+        buffers) and leaves the better in P, with its residual ready for :meth:`run`; choosing
+        the cold start drops the momentum. Since every solver step is monotone, the frame then
+        ends no farther from the target than geometry only (the cold start) — whatever the
+        warm start was.
 
         Returns
         -------
@@ -242,9 +253,8 @@ class Solver:
         if self._d is None:
             ops.forward(self.P, self._fp)
             self._d = ops.metric_residual(self._fp, self.target, self._q)
-        ops.clamp_copy(self.target, self._P_alt)
-        ops.forward(self._P_alt, self._fp_alt)
-        d_cold = ops.metric_residual(self._fp_alt, self.target, self._q_alt)
+        if d_cold is None:
+            d_cold = self.cold_distance()
         if d_cold < self._d:
             self.P, self._P_alt = self._P_alt, self.P
             self._fp, self._fp_alt = self._fp_alt, self._fp
@@ -262,14 +272,15 @@ class Solver:
         self.target, self.target_prev = self.target_prev, self.target
         self._carried = (self._momentum, self._theta, self._beta)
 
-    def start_from_motion(self) -> bool:
+    def start_from_motion(self, d_cold: float | None = None) -> bool:
         """Start from the previous frame's correction moved along the motion (on the backend,
         no host round trip): ``P = clamp(T + B(P − T_prev))`` where the motion is valid, the
         cold start ``clamp(T)`` elsewhere; B is the motion set by ``ops.set_motion``. Kept only
         when it is at least as close as the cold start (:meth:`keep_better_than_cold`); then
         FISTA's previous iterate and gradient move the same way (``P_prev``, ``G_prev``), with
         the momentum dropped pixel by pixel where the motion is invalid (``P_prev = P``,
-        ``G_prev = G``: a plain step there). Call after :meth:`begin_frame` and the new target.
+        ``G_prev = G``: a plain step there). Call after :meth:`begin_frame` and the new target
+        (``d_cold``: from :meth:`cold_distance` on that target, see :meth:`keep_better_than_cold`).
 
         Returns
         -------
@@ -277,11 +288,12 @@ class Solver:
         """
         ops = self.ops
         momentum, theta, beta = self._carried
-        ops.carry(self.P, self.target, self._P_alt, base_prev=self.target_prev,
+        # (into _s: _P_alt may hold the cold start of cold_distance)
+        ops.carry(self.P, self.target, self._s, base_prev=self.target_prev,
                   base_new=self.target, clamp=True)
-        self.P, self._P_alt = self._P_alt, self.P
+        self.P, self._s = self._s, self.P
         self._forget_p()
-        kept, _, _ = self.keep_better_than_cold()
+        kept, _, _ = self.keep_better_than_cold(d_cold)
         if not kept or not momentum or self.solver != "fista":
             return kept
         ops.carry(self._P_prev, self.P, self._s, base_prev=self.target_prev,
@@ -306,12 +318,17 @@ class Solver:
         t0 = time.perf_counter()
         info = SolveInfo(self.solver)
         ops = self.ops
+        fista = self.solver == "fista" and iterations > 0
         if self._d is None:
             ops.forward(self.P, self._fp)
-            self._d = ops.metric_residual(self._fp, self.target, self._q)
-        info.distances.append(self._d)
-        if iterations > 0:
-            (self._run_pg if self.solver == "pg" else self._run_fista)(iterations, tol, info)
+            # FISTA keeps the distance on the device (no read-back until the run ends)
+            self._d = ops.metric_residual(self._fp, self.target, self._q, reduce=not fista)
+        if fista:
+            self._run_fista(iterations, tol, info)
+        else:
+            info.distances.append(self._d)
+            if iterations > 0:
+                self._run_pg(iterations, tol, info)
         self._d = info.distances[-1]
         ops.finish()
         info.seconds = time.perf_counter() - t0
@@ -361,47 +378,50 @@ class Solver:
 
     # ------------------------------------------------------------------ FISTA
     def _run_fista(self, iterations: int, tol: float, info: SolveInfo) -> None:
+        """FISTA with its restart test on the backend (``ops.fista_decide``): a step that
+        increased d is undone there (``ops.fista_undo`` copies P and q back), so the host
+        rotates its buffers the same way after every step and reads the distances, the momentum
+        and the step once, at the end. Only a tolerance (``tol > 0``) reads back per iteration."""
         ops = self.ops
-        d = info.distances[-1]
         theta, beta = (self._theta, self._beta) if self._momentum else (1.0, 0.0)
+        ops.fista_state_write(self._d, theta, beta, 2.0 / self.L, iterations)
+        if self._d is None:
+            ops.fista_set_d()             # from run()'s metric_residual
         have_grad = self._grad_ready      # G holds F^T q at the current P
-        for _ in range(iterations):
+        done = 0
+        for k in range(iterations):
             if not have_grad:
                 ops.gradient(self._q, self._G)
             # By linearity the gradient at y = P + β (P − P_prev) is G + β (G − G_prev): one
-            # adjoint per iteration, at the accepted iterate.
-            # The step sizes are only needed for the tol test: skip that host round trip otherwise.
-            dd, pp = ops.fista_step(self.P, self._P_prev, self._G, self._G_prev, beta,
-                                    2.0 / self.L, self._P_alt, sums=tol > 0)
+            # adjoint per iteration, at the accepted iterate (after a rejected step, the same
+            # gradient again). β and the step come from the backend's state.
+            dd, pp = ops.fista_step(self.P, self._P_prev, self._G, self._G_prev, None, None,
+                                    self._P_alt, sums=tol > 0)
             ops.forward(self._P_alt, self._fp)
-            d_new = ops.metric_residual(self._fp, self.target, self._q_alt)
-            info.iterations += 1
-            if d_new > d:
-                # Adaptive restart: reject the step, drop the momentum; if even a plain projected
-                # step went uphill, L was underestimated.
-                info.restarts += 1
-                if beta == 0.0:
-                    self.L *= 2.0
-                    log.debug("FISTA: plain step increased d; L doubled to %.4g", self.L)
-                theta, beta = 1.0, 0.0
-                have_grad = True
-                info.distances.append(d)
-                continue
+            ops.metric_residual(self._fp, self.target, self._q_alt, reduce=False)
+            ops.fista_decide(k)
+            ops.fista_undo(self.P, self._P_alt, self._q, self._q_alt)
             self._P_prev, self.P, self._P_alt = self.P, self._P_alt, self._P_prev
             self._q, self._q_alt = self._q_alt, self._q
             self._G_prev, self._G = self._G, self._G_prev
             have_grad = False
-            d = d_new
-            info.distances.append(d)
-            theta_next = (1.0 + math.sqrt(1.0 + 4.0 * theta * theta)) / 2.0
-            beta = (theta - 1.0) / theta_next
-            theta = theta_next
-            if tol > 0:
+            done = k + 1
+            if tol > 0 and ops.fista_accepted():
                 rel = math.sqrt(dd / max(pp, 1e-30))
                 info.rel_change = rel
                 if rel < tol:
                     info.converged = True
                     break
+        st = ops.fista_state_read(done)
+        info.iterations = done
+        info.distances.extend(st["log"])
+        info.restarts = st["restarts"]
+        # The step halves (L doubles) where even a plain step increased d (the backend's state
+        # holds it in float32: count the halvings rather than invert it).
+        halvings = round(math.log2(float(np.float32(2.0 / self.L)) / st["step"]))
+        if halvings > 0:
+            self.L *= 2.0 ** halvings
+            log.debug("FISTA: a plain step increased d; L raised to %.4g", self.L)
         # The momentum (and P_prev, G_prev) stay valid for the next call on the same target.
-        self._theta, self._beta, self._momentum = theta, beta, True
+        self._theta, self._beta, self._momentum = st["theta"], st["beta"], True
         self._grad_ready = have_grad

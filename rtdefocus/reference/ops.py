@@ -168,6 +168,8 @@ class NumpyOps:
                 raise InputError(f"scale must be {self.shape} (3, H, W); got {self.scale.shape}")
             self.scale_max = float(self.scale.max())
             self.precond = scale_preconditioner(self.scale, self.psfs, self.idx, self.wts)
+        self._pending_d: float | None = None    # metric_residual's d, for fista_set_d / decide
+        self._state: dict | None = None          # FISTA's state (fista_state_write)
         self._enc_key: bytes | None = None      # the LUT whose encoder tables are cached
         self._enc_tables = None
 
@@ -206,15 +208,20 @@ class NumpyOps:
         else:
             dst[...] = self._fwd(src, self._psfs_flipped, self.idx, self.wts)
 
-    def metric_residual(self, fp, target, q) -> float:
+    def metric_residual(self, fp, target, q, reduce: bool = True) -> float | None:
+        """q = Q (fp − target); returns d (``reduce=False``: None, d kept for
+        :meth:`fista_set_d` / :meth:`fista_decide`, as the device keeps its partial sums)."""
         e = fp - target
         if self.scale is None:
             q[...] = metric_field(e, self.metric)
-            return _vdot(e, q)
-        e *= self.scale                              # e = S (F P − target)
-        qe = metric_field(e, self.metric)
-        np.multiply(qe, self.scale, out=q)           # q = S Q e
-        return _vdot(e, qe)
+            d = _vdot(e, q)
+        else:
+            e *= self.scale                              # e = S (F P − target)
+            qe = metric_field(e, self.metric)
+            np.multiply(qe, self.scale, out=q)           # q = S Q e
+            d = _vdot(e, qe)
+        self._pending_d = d
+        return d if reduce else None
 
     def metric_update(self, fp, fs, t, target, fp_out, q) -> float:
         fp_out[...] = fp + np.float32(t) * fs
@@ -246,6 +253,8 @@ class NumpyOps:
         x += np.float32(a) * y
 
     def fista_step(self, P, P_prev, G, G_prev, beta, step, P_out, sums=True) -> tuple[float, float]:
+        if beta is None:                             # from the state (fista_decide)
+            beta, step = self._state["beta"], self._state["step"]
         y, gy = P, G
         if beta != 0.0:
             y = P + np.float32(beta) * (P - P_prev)
@@ -257,6 +266,42 @@ class NumpyOps:
             return float("nan"), float("nan")
         d = P_out - P
         return _vdot(d, d), _vdot(P_out, P_out)
+
+    # FISTA's restart test, as ``kernels/solver.cl`` runs it on the device (fista_decide).
+    def fista_state_write(self, d, theta, beta, step, iterations) -> None:
+        self._state = {"d": d, "theta": float(theta), "beta": float(beta), "step": float(step),
+                       "accept": True, "restarts": 0, "log": [d]}
+
+    def fista_set_d(self) -> None:
+        self._state["d"] = self._pending_d
+        self._state["log"][0] = self._pending_d
+
+    def fista_decide(self, k) -> None:
+        st, d_new = self._state, self._pending_d
+        if d_new > st["d"]:
+            st["accept"] = False
+            st["restarts"] += 1
+            if st["beta"] == 0.0:
+                st["step"] *= 0.5
+            st["theta"], st["beta"] = 1.0, 0.0
+        else:
+            theta_next = (1.0 + np.sqrt(1.0 + 4.0 * st["theta"] ** 2)) / 2.0
+            st["accept"], st["d"] = True, d_new
+            st["beta"], st["theta"] = (st["theta"] - 1.0) / theta_next, theta_next
+        st["log"].append(st["d"])
+
+    def fista_undo(self, P, P_out, q, q_out) -> None:
+        if not self._state["accept"]:
+            P_out[...] = P
+            q_out[...] = q
+
+    def fista_accepted(self) -> bool:
+        return self._state["accept"]
+
+    def fista_state_read(self, iterations) -> dict:
+        st = self._state
+        return {"d": st["d"], "theta": st["theta"], "beta": st["beta"], "step": st["step"],
+                "restarts": st["restarts"], "log": list(st["log"][:1 + iterations])}
 
     def set_motion(self, map_xy, valid) -> None:
         """The motion :meth:`carry` moves fields along: ``(H, W, 2)`` float32 source
