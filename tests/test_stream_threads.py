@@ -32,7 +32,10 @@ def comp(calib):
 
 
 def loop_threads() -> list[str]:
-    return [t.name for t in threading.enumerate() if t.name.startswith("rtdefocus-")]
+    """The player's own threads still alive (a Compensator's motion helper belongs to it and
+    lives as long as it does)."""
+    return [t.name for t in threading.enumerate()
+            if t.name.startswith("rtdefocus-") and not t.name.startswith("rtdefocus-motion")]
 
 
 class FileLikeSink(RecordingSink):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -408,6 +409,8 @@ class Compensator:
         # measured; a GPU blurs while the CPU computes the flow.)
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-motion")
+            # The thread lives as long as this Compensator, not until the interpreter exits.
+            weakref.finalize(self, self._pool.shutdown, wait=False)
         pending = self._pool.submit(self._motion.estimate, prev, warped)
         d_cold = s.cold_distance()
         motion = pending.result()
