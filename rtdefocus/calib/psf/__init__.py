@@ -97,6 +97,17 @@ log = logging.getLogger(__name__)
 # rim and the support bound would otherwise add mass (and inflate the radius by ~0.3 px).
 # 2 sigmas: on the simulator 0, 1, 2 give interior errors 0.083, 0.081, 0.077 (cubicle).
 _NOISE_FLOOR = 2.0
+# Region labels of kernels averaged with no other (above every plane and fold code).
+_OWN_REGION = 1 << 20
+
+
+def iso_regions(planes: np.ndarray, model: RadiusModel) -> np.ndarray:
+    """The regions :func:`~.dots.iso_average` averages within: each sample's plane (or fold
+    code), except on a plane whose pilot gave no gradient (too few dots: a "constant" guess),
+    where no line of equal blur is known: there each kernel is a region of its own."""
+    planes = np.asarray(planes)
+    guessed = np.isin(planes, [r for r, k in model.kind.items() if k == "constant"])
+    return np.where(guessed, _OWN_REGION + np.arange(len(planes)), planes)
 
 
 @dataclass(frozen=True)
@@ -272,7 +283,8 @@ class PsfRun:
             noise[skipped] = float(np.median(noise[~skipped]))
         if o.iso_tolerance > 0:
             signed = plan.radius if plan.radius_signed is None else plan.radius_signed
-            raw, n_eff = iso_average(raw, plan.points, plan.planes, signed,
+            regions = iso_regions(plan.planes, self.blind if key[1] else self.model)
+            raw, n_eff = iso_average(raw, plan.points, regions, signed,
                                      np.where(skipped, 1e3 * noise, noise), o.iso_tolerance,
                                      o.iso_distance)
         cleaned, tight = [], np.zeros(len(raw))
@@ -469,7 +481,7 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
 
 
 __all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
-           "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
+           "LAYOUTS", "FOLD", "pilot_radius", "iso_regions", "plan_samples", "measure_psfs",
            "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
            "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel",
            "SamplePlan", "Measurement"]
