@@ -8,7 +8,9 @@ shift, not a flip.
 The stage, step by step (every step only calls ``capture``):
 
 1. **Pilot** (1 capture): 3×3 squares on a coarse grid; their spread gives a blur radius per
-   grid point, fitted per plane. For a thin lens r = A·f·|1/D_focus − 1/D| with 1/D affine on
+   grid point, fitted per plane (the grid is made finer, down to half its spacing, until every
+   plane has six dots: a narrow side wall would otherwise get one column and no gradient). For
+   a thin lens r = A·f·|1/D_focus − 1/D| with 1/D affine on
    a plane, so r is affine on each wall (or |affine| where the wall crosses the focus), and its
    lines of equal blur are straight. The fit sets each dot's size and measuring window, the
    dot spacing, how far from the fold the fold samples go, and where samples are needed.
@@ -45,7 +47,8 @@ The stage, step by step (every step only calls ``capture``):
 5. **Averaging and clean-up**: each raw LS kernel (divided by its energy: the albedo is α's
    business) is averaged with its plane's kernels of the same predicted blur nearby
    (:func:`iso_average`): along a line of equal blur a thin lens's kernel is the same, so this
-   cuts the noise where it dominates (wide, faint kernels, e.g. at a concave fold). Raw, so
+   cuts the noise where it dominates (wide, faint kernels, e.g. at a concave fold); on a plane
+   whose pilot is only a constant guess (fewer than 4 dots) nothing is averaged. Raw, so
    the zero-mean noise averages away. Then the averaged kernel's equivalent disc radius
    r = sqrt(2 E[u² + v²]) sets a tighter support (1.15 r + 1.2 px); outside it, and below 2
    noise sigmas (the noise ring around a wide kernel), the kernel is 0; the sum is normalised
@@ -131,7 +134,8 @@ class PsfOptions:
         directly; a larger dot gives dot_size² more light and is deconvolved by the LS model
         (with a small ridge). ``"auto"`` uses 1 px where the predicted blur is small (bright
         enough) and 2-3 px where it is large (a 1-px dot is then too faint against the noise).
-    pilot_spacing : grid step of the pilot dots (px); must exceed ~3x the largest blur radius.
+    pilot_spacing : grid step of the pilot dots (px), made finer down to half of it where a
+        plane gets fewer than six dots; that half must exceed ~3x the largest blur radius.
     iso_tolerance, iso_distance : each PSF is averaged with the PSFs of its plane whose
         predicted radius is within ``iso_tolerance`` px, up to ``iso_distance`` px away
         (:func:`~.dots.iso_average`); ``iso_tolerance=0`` keeps every PSF as measured.
