@@ -7,9 +7,9 @@ Each room is calibrated once per module at SIZE with the preset's blur radii unc
 (``blur_range_px`` 1.5-6 px, as at 800x600): the kernels keep their size while the planes
 shrink, so 480x360 is the harder case (a side wall of the U is 120 px wide and gets few pilot
 dots). Measured (tools/preset_table.py, 2 cores, PoCL; kernel L2 inside / near folds, gain
-share): u_cubicle 0.071 / 0.076, 99 % at 480x360; 0.082 / 0.104, 99 % at 640x480; 0.099 /
-0.150, 98 % at 800x600; corner_ceiling 0.107 / 0.112, 95 %; 0.098 / 0.133, 97 %; 0.096 /
-0.199, 98 %. ~40 s per room here (calibration ~12 s unloaded, the rest the figures).
+share): u_cubicle 0.070 / 0.076, 99 % at 480x360; 0.082 / 0.104, 99 % at 640x480; 0.098 /
+0.150, 98 % at 800x600; corner_ceiling 0.090 / 0.111, 98 %; 0.093 / 0.133, 98 %; 0.095 /
+0.199, 98 %. The module takes ~45 s here (each calibration 13-22 s, the rest the figures).
 """
 
 from __future__ import annotations
