@@ -8,6 +8,7 @@ import functools
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 import rtdefocus as rd
 from rtdefocus.calib.file import Calibration
@@ -168,6 +169,65 @@ def test_corners_at_a_vertex_share_one_pattern():
 def test_fold_code_round_trip():
     assert fold_code(0) == rd.calib.psf.FOLD
     assert [fold_code(fold_code(j)) for j in range(5)] == list(range(5))
+
+
+def _pilot_on(cal: Calibration, radius_at):
+    """The pilot on a synthetic layout: each dot seen through the frame's 1.5x scale, blurred by
+    a Gaussian of disc-equivalent radius ``radius_at(x)`` (E[u² + v²] = r² / 2 = 2 sigma²)."""
+    import cv2
+
+    from rtdefocus.calib.psf import pilot_radius
+
+    S = cal.H_cam_from_proj[0]
+
+    def capture(pattern):
+        out = np.zeros(pattern.shape[:2], np.float32)
+        lab, n = ndimage.label(pattern[..., 1] > 0)
+        for k, sl in enumerate(ndimage.find_objects(lab)):
+            x = (sl[1].start + sl[1].stop - 1) / 2
+            one = (lab == k + 1).astype(np.float32)
+            out += cv2.GaussianBlur(one, (0, 0), radius_at(x) / 2)
+        cam = cv2.warpPerspective(out, S, cal.camera_size, flags=cv2.INTER_LINEAR)
+        return np.repeat(np.clip(np.rint(255 * 0.9 * cam / out.max()), 0, 255)
+                         .astype(np.uint8)[..., None], 3, axis=2)
+
+    return pilot_radius(cal, capture)
+
+
+def test_pilot_gives_every_plane_a_blur_gradient():
+    """A side wall a quarter of the frame wide gets one column of the default pilot grid; the
+    grid is made finer until every plane has MIN_PILOT_DOTS dots, so each plane's radius is fitted
+    (not a constant guess) and follows the true gradient. Two half-frame walls keep the grid."""
+    from rtdefocus.calib.psf.pilot import MIN_PILOT_DOTS
+
+    def radius_at(x):              # blur grows towards the middle wall, 1.5 .. 3.5 px
+        return 1.5 + 2.0 * min(x, 319 - x) / 160
+
+    u = case("u")
+    model = _pilot_on(u, radius_at)
+    plane = u.plane_of(model.points[:, 0], model.points[:, 1]).astype(int)
+    assert np.bincount(plane, minlength=3).min() >= MIN_PILOT_DOTS
+    assert "constant" not in model.kind.values(), model.kind
+    for p, x in ((0, 20.0), (0, 70.0), (2, 250.0), (2, 300.0)):
+        got = float(model(np.array([[x, 120.0]]), p)[0])
+        assert abs(got - radius_at(x)) < 0.3, f"plane {p} at x = {x}: {got:.2f} vs {radius_at(x):.2f}"
+    two = _synthetic(2, [[1, 0, -159.5]], [[0, 1]])
+    xs = np.unique(_pilot_on(two, radius_at).points[:, 0])
+    assert np.all(np.diff(xs) == 80), xs      # the default 100 px, capped at a third of 240
+
+
+def test_kernels_of_a_plane_without_a_gradient_are_not_averaged():
+    """iso_average's premise (equal predicted radius, equal kernel) needs a fitted radius: on a
+    plane whose pilot is a constant guess each kernel stays its own; elsewhere the planes (and
+    fold codes) are the regions."""
+    from rtdefocus.calib.psf import iso_regions
+
+    m = RadiusModel(points=np.zeros((0, 2)), radii=np.zeros(0),
+                    kind={0: "constant", 1: "affine", 2: "abs-affine"})
+    planes = np.array([0, 0, 1, 1, 2, 2, fold_code(0), 0])
+    reg = iso_regions(planes, m)
+    np.testing.assert_array_equal(reg[2:7], planes[2:7])
+    assert len({*reg[[0, 1, 7]].tolist(), *reg[2:7].tolist()}) == 3 + len(set(planes[2:7].tolist()))
 
 
 # ----------------------------------------------------------------------------- radiometry, Wiener

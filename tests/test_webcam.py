@@ -180,8 +180,8 @@ def _webcam_calibration():
 def test_calibration_on_a_webcam_in_a_lit_room():
     """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
     aperture, barrel lens: calibration passes and meets issue 11's done-when figures, each
-    measured against the ground truth (tests/webcam_figures.py)."""
-    from webcam_figures import figures
+    measured against the ground truth (tests/setup_figures.py)."""
+    from setup_figures import figures
 
     from rtdefocus.samples import photographs
 

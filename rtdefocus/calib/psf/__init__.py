@@ -8,7 +8,9 @@ shift, not a flip.
 The stage, step by step (every step only calls ``capture``):
 
 1. **Pilot** (1 capture): 3×3 squares on a coarse grid; their spread gives a blur radius per
-   grid point, fitted per plane. For a thin lens r = A·f·|1/D_focus − 1/D| with 1/D affine on
+   grid point, fitted per plane (the grid is made finer, down to half its spacing, until every
+   plane has six dots: a narrow side wall would otherwise get one column and no gradient). For
+   a thin lens r = A·f·|1/D_focus − 1/D| with 1/D affine on
    a plane, so r is affine on each wall (or |affine| where the wall crosses the focus), and its
    lines of equal blur are straight. The fit sets each dot's size and measuring window, the
    dot spacing, how far from the fold the fold samples go, and where samples are needed.
@@ -47,7 +49,8 @@ The stage, step by step (every step only calls ``capture``):
 5. **Averaging and clean-up**: each raw LS kernel (divided by its energy: the albedo is α's
    business) is averaged with its plane's kernels of the same predicted blur nearby
    (:func:`iso_average`): along a line of equal blur a thin lens's kernel is the same, so this
-   cuts the noise where it dominates (wide, faint kernels, e.g. at a concave fold). Raw, so
+   cuts the noise where it dominates (wide, faint kernels, e.g. at a concave fold); on a plane
+   whose pilot is only a constant guess (fewer than 4 dots) nothing is averaged. Raw, so
    the zero-mean noise averages away. Then the averaged kernel's equivalent disc radius
    r = sqrt(2 E[u² + v²]) sets a tighter support (1.15 r + 1.2 px); outside it, and below 2
    noise sigmas (the noise ring around a wide kernel), the kernel is 0; the sum is normalised
@@ -99,6 +102,17 @@ log = logging.getLogger(__name__)
 # rim and the support bound would otherwise add mass (and inflate the radius by ~0.3 px).
 # 2 sigmas: on the simulator 0, 1, 2 give interior errors 0.083, 0.081, 0.077 (cubicle).
 _NOISE_FLOOR = 2.0
+# Region labels of kernels averaged with no other (above every plane and fold code).
+_OWN_REGION = 1 << 20
+
+
+def iso_regions(planes: np.ndarray, model: RadiusModel) -> np.ndarray:
+    """The regions :func:`~.dots.iso_average` averages within: each sample's plane (or fold
+    code), except on a plane whose pilot gave no gradient (too few dots: a "constant" guess),
+    where no line of equal blur is known: there each kernel is a region of its own."""
+    planes = np.asarray(planes)
+    guessed = np.isin(planes, [r for r, k in model.kind.items() if k == "constant"])
+    return np.where(guessed, _OWN_REGION + np.arange(len(planes)), planes)
 
 
 @dataclass(frozen=True)
@@ -123,7 +137,8 @@ class PsfOptions:
         directly; a larger dot gives dot_size² more light and is deconvolved by the LS model
         (with a small ridge). ``"auto"`` uses 1 px where the predicted blur is small (bright
         enough) and 2-3 px where it is large (a 1-px dot is then too faint against the noise).
-    pilot_spacing : grid step of the pilot dots (px); must exceed ~3x the largest blur radius.
+    pilot_spacing : grid step of the pilot dots (px), made finer down to half of it where a
+        plane gets fewer than six dots; that half must exceed ~3x the largest blur radius.
     iso_tolerance, iso_distance : each PSF is averaged with the PSFs of its plane whose
         predicted radius is within ``iso_tolerance`` px, up to ``iso_distance`` px away
         (:func:`~.dots.iso_average`); ``iso_tolerance=0`` keeps every PSF as measured.
@@ -291,7 +306,8 @@ class PsfRun:
             noise[skipped] = float(np.median(noise[~skipped]))
         if o.iso_tolerance > 0:
             signed = plan.radius if plan.radius_signed is None else plan.radius_signed
-            raw, n_eff = iso_average(raw, plan.points, plan.planes, signed,
+            regions = iso_regions(plan.planes, self.blind if key[1] else self.model)
+            raw, n_eff = iso_average(raw, plan.points, regions, signed,
                                      np.where(skipped, 1e3 * noise, noise), o.iso_tolerance,
                                      o.iso_distance)
         cleaned, tight = [], np.zeros(len(raw))
@@ -488,7 +504,7 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
 
 
 __all__ = ["calibrate_psf", "PsfOptions", "psf_options", "PsfRun", "Dots", "OPTIONS",
-           "LAYOUTS", "FOLD", "pilot_radius", "plan_samples", "measure_psfs",
+           "LAYOUTS", "FOLD", "pilot_radius", "iso_regions", "plan_samples", "measure_psfs",
            "interpolation_field", "psf_diagnostics", "radius_map", "equivalent_radius",
            "fold_segment", "fold_segments", "fold_code", "pack_patterns", "RadiusModel",
            "SamplePlan", "Measurement"]

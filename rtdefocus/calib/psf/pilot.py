@@ -31,6 +31,9 @@ def fold_code(j) -> int:
 # Generous: the pilot is rough, and a hexagonal aperture's corners reach 1.1 r_eq.
 _SUPPORT_A, _SUPPORT_B = 1.2, 2.5
 
+# Pilot dots each plane should get: enough for an |affine| radius fit (6 unknowns' worth).
+MIN_PILOT_DOTS = 6
+
 
 @dataclass
 class RadiusModel:
@@ -124,6 +127,17 @@ def _fit_region(pts: np.ndarray, r: np.ndarray, force_affine: bool = False):
     return f, "piecewise-linear", None
 
 
+def _pilot_grid(wp: int, hp: int, spacing: int) -> np.ndarray:
+    """(M, 2) int pilot dot centres every ``spacing`` px, the grid centred in the frame."""
+    half = spacing // 2
+    xs = np.arange(half, wp - half + 1, spacing)
+    ys = np.arange(half, hp - half + 1, spacing)
+    xs += (wp - 1 - xs[-1] - xs[0]) // 2       # centre the grid in the frame
+    ys += (hp - 1 - ys[-1] - ys[0]) // 2
+    gx, gy = np.meshgrid(xs, ys)
+    return np.column_stack([gx.ravel(), gy.ravel()]).astype(int)
+
+
 def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, dot: int = 3,
                  camera_gamma=1.0, single_region: bool = False,
                  normalise=None) -> RadiusModel:
@@ -139,13 +153,20 @@ def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, d
 
     wp, hp = calib.projector_size
     spacing = int(max(24, min(spacing, wp // 3, hp // 3)))
+    # A plane with fewer than MIN_PILOT_DOTS grid dots gets no radius gradient (a narrow side
+    # wall of a U: one column of dots), and its kernels would then be sampled and averaged as if
+    # its blur were constant. The grid is made finer until every plane has enough, down to
+    # half the asked spacing (the window must still hold the blur).
+    floor = max(24, spacing // 2)
+    pts = _pilot_grid(wp, hp, spacing)
+    while calib.n_planes > 1 and spacing > floor:
+        counts = np.bincount(calib.plane_of(pts[:, 0], pts[:, 1]).astype(int),
+                             minlength=calib.n_planes)
+        if counts.min() >= MIN_PILOT_DOTS:
+            break
+        spacing = max(floor, int(spacing * 0.8))
+        pts = _pilot_grid(wp, hp, spacing)
     half = spacing // 2
-    xs = np.arange(half, wp - half + 1, spacing)
-    ys = np.arange(half, hp - half + 1, spacing)
-    xs += (wp - 1 - xs[-1] - xs[0]) // 2       # centre the grid in the frame
-    ys += (hp - 1 - ys[-1] - ys[0]) // 2
-    gx, gy = np.meshgrid(xs, ys)
-    pts = np.column_stack([gx.ravel(), gy.ravel()]).astype(int)
     pattern = np.zeros((hp, wp, 3), np.uint8)
     o = (dot - 1) // 2
     for x, y in pts:
