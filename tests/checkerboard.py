@@ -40,3 +40,26 @@ def corner_errors(camera_rgb: np.ndarray, rect, board_shape) -> tuple[np.ndarray
     assert len(set(d.argmin(axis=1))) == len(expect), "corners matched ambiguously"
     ordered = corners[d.argmin(axis=1)].reshape(NY - 1, NX - 1, 2)
     return d.min(axis=1), ordered
+
+
+def through_warp(procam, calib, lens=None) -> tuple[np.ndarray, np.ndarray]:
+    """The board warped with ``calib`` into the display rect (5 % margin), shown on
+    ``procam`` and seen sharp: :func:`corner_errors` of that view.
+
+    The view is divided by the view of a white frame, so a printed or woven wall's own edges do
+    not pull the corner finder (the geometry is what is measured), and undistorted with
+    ``lens`` (k1, k2) when given (the simulator's true lens, to judge a calibration that took
+    its lens out)."""
+    from rtdefocus.gl.warp import warp_image
+
+    img = board()
+    rect = calib.display_rect((img.shape[1], img.shape[0]), margin=0.05)
+    frame = warp_image(calib, img, rect=rect)
+    view = procam.capture(frame, sharp=True).astype(np.float32)
+    white = procam.capture(np.full_like(frame, 255), sharp=True).astype(np.float32)
+    view = np.clip(255.0 * view / np.maximum(white, 1.0), 0, 255).astype(np.uint8)
+    if lens is not None:
+        from rtdefocus.calib.lens import undistort_image
+
+        view = undistort_image(view, lens, tuple(procam.camera_size))
+    return corner_errors(view, rect, img.shape)

@@ -128,17 +128,7 @@ def checkerboard_rms(procam, calib) -> tuple[float, float, int]:
     corners fall on (so how many folds the rows cross). The camera view is divided
     by a white view (texture) and undistorted with the *true* lens, so the figure judges the
     calibrated geometry (lens included) against the truth."""
-    from rtdefocus.calib.lens import undistort_image
-    from rtdefocus.gl.warp import warp_image
-
-    img = checkerboard.board()
-    rect = calib.display_rect((img.shape[1], img.shape[0]), margin=0.05)
-    frame = warp_image(calib, img, rect=rect)
-    view = procam.capture(frame, sharp=True).astype(np.float32)
-    white = procam.capture(np.full_like(frame, 255), sharp=True).astype(np.float32)
-    view = np.clip(255.0 * view / np.maximum(white, 1.0), 0, 255).astype(np.uint8)
-    view = undistort_image(view, procam.truth.distortion, tuple(procam.camera_size))
-    err, grid = checkerboard.corner_errors(view, rect, img.shape)
+    err, grid = checkerboard.through_warp(procam, calib, lens=procam.truth.distortion)
     bend = 0.0
     for line in list(grid) + list(grid.transpose(1, 0, 2)):
         centred = line - line.mean(axis=0)

@@ -145,18 +145,8 @@ def test_checkerboard_through_the_calibrated_warp_is_where_the_rect_says(calibra
     homographies, fold and display rect), seen by the camera with ``sharp=True``, has its inner
     corners within 0.5 camera px RMS of where ``display_rect`` puts them, and each row and
     column of corners is straight across the fold (line-fit residual < 0.5 px)."""
-    from rtdefocus.gl.warp import warp_image
-
     pc, calib, _ = calibrated(preset)
-    img = checkerboard.board()
-    rect = calib.display_rect((img.shape[1], img.shape[0]), margin=0.05)
-    frame = warp_image(calib, img, rect=rect)
-    view = pc.capture(frame, sharp=True).astype(np.float32)
-    # Divided by the view of a white frame: on a printed or woven wall (fabric) the texture's
-    # own edges would pull the corner finder; the geometry is what is measured here.
-    white = pc.capture(np.full_like(frame, 255), sharp=True).astype(np.float32)
-    view = np.clip(255.0 * view / np.maximum(white, 1.0), 0, 255).astype(np.uint8)
-    err, grid = checkerboard.corner_errors(view, rect, img.shape)
+    err, grid = checkerboard.through_warp(pc, calib)
     rms = float(np.sqrt(np.mean(err ** 2)))
     assert rms <= 0.5, f"{preset}: corners {rms:.3f} px RMS from the rect (max {err.max():.3f})"
     for line in list(grid) + list(grid.transpose(1, 0, 2)):

@@ -125,16 +125,8 @@ def test_planes_and_folds_match_the_truth(preset):
 
 @pytest.mark.parametrize("preset", ROOMS)
 def test_checkerboard_is_in_place_on_every_plane_and_straight_across_every_fold(preset):
-    from rtdefocus.gl.warp import warp_image
-
     pc, calib = _calibrated(preset)
-    img = checkerboard.board()
-    rect = calib.display_rect((img.shape[1], img.shape[0]), margin=0.05)
-    frame = warp_image(calib, img, rect=rect)
-    view = pc.capture(frame, sharp=True).astype(np.float32)
-    white = pc.capture(np.full_like(frame, 255), sharp=True).astype(np.float32)
-    view = np.clip(255.0 * view / np.maximum(white, 1.0), 0, 255).astype(np.uint8)
-    err, grid = checkerboard.corner_errors(view, rect, img.shape)
+    err, grid = checkerboard.through_warp(pc, calib)
     cam_plane = pc.truth.extra["camera_plane_map"]
     pts = grid.reshape(-1, 2)
     plane = cam_plane[np.rint(pts[:, 1]).astype(int), np.rint(pts[:, 0]).astype(int)]
