@@ -25,13 +25,6 @@ from .scores import ImageScores, score_image
 __all__ = ["run_rooms"]
 
 
-def _count(captures) -> int | None:
-    """Total captures from the per-stage counts the calibration records."""
-    if isinstance(captures, dict):
-        return int(sum(captures.values()))
-    return captures
-
-
 def run_rooms(out: Path, presets: tuple[str, ...], images: dict[str, np.ndarray], *,
               methods: tuple[str, ...] = ("ycbcr",), seed: int = 0, progress=None,
               step: Callable[[str], None] | None = None, side_by_side=None,
@@ -58,7 +51,7 @@ def run_rooms(out: Path, presets: tuple[str, ...], images: dict[str, np.ndarray]
         geo = calib.meta.get("geometry", {})
         summary[preset] = {"planes": calib.n_planes, "planes_true": procam.truth.n_planes,
                            "folds": int(calib.folds_proj.shape[0]),
-                           "captures": _count(calib.meta.get("captures")),
+                           "captures": int(sum(calib.meta.get("captures", {}).values())),
                            "seconds": calib.meta.get("seconds"),
                            "fold_disagreement_px": geo.get("fold_disagreement_px")}
         comps = {m: Compensator(calib, method=m) for m in methods}

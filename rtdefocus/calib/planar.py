@@ -148,8 +148,8 @@ def fold_sign(plane: int) -> float:
 
 
 # --------------------------------------------------------------------------- plane layouts
-#: Most planes one calibration handles, and most folds between them (the GL warp's uniform
-#: arrays are this long; planes meeting along lines make at most 3 n - 6 folds for n >= 3).
+#: Most planes one calibration handles (the GL warp's matrix array is this long), and most
+#: folds between them (planes meeting along lines make at most 3 n - 6 folds for n >= 3).
 MAX_PLANES = 8
 MAX_FOLDS = 2 * MAX_PLANES
 
