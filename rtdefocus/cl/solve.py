@@ -130,6 +130,9 @@ class ClSolveOps:
         self._m_groups = (self._m_global[0] // lx) * (self._m_global[1] // ly)
         self._e_groups = -(-self.n // (vec * items * wg))
         self._e_global = (self._e_groups * wg,)
+        # fista_undo strides over the arrays from a few groups (see solver.cl): enough to keep
+        # every compute unit busy on the rare rejected step.
+        self._undo_global = (min(self._e_groups, 4 * max(1, dev.max_compute_units)) * wg,)
         npix = h * w
         self._p_global = (-(-npix // wg) * wg,)
         n_enc = -(-npix // 16)                  # encode_lut: 16 pixels per work-item
@@ -307,7 +310,7 @@ class ClSolveOps:
 
     def fista_undo(self, P, P_out, q, q_out) -> None:
         """Where the last step was rejected: P_out = P, q_out = q (else nothing)."""
-        self._k["fista_undo"](self.queue, self._e_global, (self._wg,), self._state.data, P.data,
+        self._k["fista_undo"](self.queue, self._undo_global, (self._wg,), self._state.data, P.data,
                               P_out.data, q.data, q_out.data, np.int32(self.n))
 
     def fista_accepted(self) -> bool:
