@@ -31,6 +31,10 @@
  * VARIANT_CPU - one work-item per 16-pixel row chunk, explicit float16 vectors (the shape a CPU's
  *   SIMD units want). Global size (ceil(ceil(W/16)/LX)*LX, ceil(H/LY)*LY), local (LX, LY).
  *
+ * With COLOUR_PC (FISTA's field; twin NumpyOps.metric_residual(colour=True)): the field written
+ * is C Q e with the 3x3 colour preconditioner C (-D PC_rc, rtdefocus.reference.metric
+ * Metric.colour_preconditioner); the distance <e, Q e> is unchanged. Not with HAS_SCALE.
+ *
  * Constants (-D): A0_rc, A1_rc for r, c in 0..2 (float literals), HAS_SPATIAL (0: no Laplacian,
  * e.g. the per-channel RGB metric), HAS_SCALE (0/1, default 0), VARIANT_GPU or VARIANT_CPU, LX, LY
  * (LX*LY a power of two).
@@ -43,6 +47,13 @@
 #define WG (LX * LY)
 #ifndef HAS_SCALE
 #define HAS_SCALE 0
+#endif
+
+#ifndef COLOUR_PC
+#define COLOUR_PC 0
+#endif
+#if COLOUR_PC && HAS_SCALE
+#error "metric.cl: COLOUR_PC is not defined for a residual scale (HAS_SCALE)"
 #endif
 
 #define MODE_RESIDUAL 0   /* e = a - c          */
@@ -125,7 +136,11 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
         if (with_dot) acc.y = dot((float3)(a[i], a[i + hw], a[i + 2 * hw]),
                                   (float3)(v[i], v[i + hw], v[i + 2 * hw]));
 #else
+#if COLOUR_PC
+        if (mode != MODE_PLAIN) store3(q, i, hw, MAT3(PC, qv));
+#else
         if (mode != MODE_PLAIN) store3(q, i, hw, qv);
+#endif
         acc.x = dot(e, qv);
         if (with_dot) acc.y = dot(e, (float3)(v[i], v[i + hw], v[i + 2 * hw]));
 #endif
@@ -206,6 +221,9 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
 #endif
     }
     float16 dsum = (float16)(0.0f);
+#if COLOUR_PC
+    float16 qv[3];
+#endif
     for (int k = 0; k < 3; ++k) {
         float16 qk;
         if (k == 0) qk = MATROW(A0, 0, e[0], e[1], e[2]);
@@ -224,11 +242,22 @@ inline float2 metric_pixel(const int mode, __global const float *restrict a,
         if (with_dot)
             acc.y += hsum16(select((float16)(0.0f), ld16(a, r, x0, W) * ld16(v, r, x0, W), inside));
 #else
+#if COLOUR_PC
+        qv[k] = qk;                       /* stored below, once all three channels are known */
+#else
         if (mode != MODE_PLAIN) st16(q, r, x0, W, qk);
+#endif
         dsum += e[k] * qk;
         if (with_dot) acc.y += hsum16(select((float16)(0.0f), e[k] * ld16(v, r, x0, W), inside));
 #endif
     }
+#if COLOUR_PC
+    if (mode != MODE_PLAIN) {
+        st16(q, row, x0, W, MATROW(PC, 0, qv[0], qv[1], qv[2]));
+        st16(q, hw + row, x0, W, MATROW(PC, 1, qv[0], qv[1], qv[2]));
+        st16(q, 2 * hw + row, x0, W, MATROW(PC, 2, qv[0], qv[1], qv[2]));
+    }
+#endif
     acc.x = hsum16(select((float16)(0.0f), dsum, inside));
     return acc;
 }

@@ -121,6 +121,16 @@ class ClSolveOps:
             mdef["HAS_SCALE"] = 1
         self._prg_m = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
                                                     "LX": lx, "LY": ly})
+        # FISTA's field q = C Q e (metric_residual(colour=True)): the same program built with
+        # the colour preconditioner C (metric.cl COLOUR_PC); not with a residual scale.
+        pc = metric.colour_preconditioner if scale is None else None
+        self.colour_pc = None if pc is None else pc.astype(np.float32)
+        self._prg_mc = None
+        if pc is not None:
+            cdef = {f"PC_{r}{c}": f"{float(pc[r, c]):.9e}f" for r in range(3) for c in range(3)}
+            self._prg_mc = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
+                                                         "LX": lx, "LY": ly, "COLOUR_PC": 1,
+                                                         **cdef})
         sdef = {"ITEMS": items, "VEC": vec, "ENC_T": ENC_T, "ENC_STEPS": ENC_STEPS}
         pdef = {} if scale is None else {"PRECOND": 1}
         self._prg_s = runtime.program("solver.cl", {"WG": wg, **sdef, **pdef})
@@ -162,6 +172,8 @@ class ClSolveOps:
         # shared between instances through the runtime's cache.
         self._k = {name: cl.Kernel(self._prg_m, name) for name in
                    ("metric_residual", "metric_update", "metric_curvature")}
+        if self._prg_mc is not None:
+            self._k["metric_residual_colour"] = cl.Kernel(self._prg_mc, "metric_residual")
         self._k.update({name: cl.Kernel(self._prg_s, name) for name in
                         ("pg_direction", "pg_step", "axpy", "fista_step", "clamp_copy",
                          "decode_lut", "encode_lut", "carry")})
@@ -223,10 +235,18 @@ class ClSolveOps:
         self._grad(src, dst)
 
     # ------------------------------------------------------------------ metric
-    def metric_residual(self, fp, target, q, reduce: bool = True) -> float | None:
-        """q = Q (fp − target); returns d = ⟨e, q⟩ (``reduce=False``: None, the distance left
-        in the partial sums for :meth:`fista_set_d` / :meth:`fista_decide`, no read-back)."""
-        self._k["metric_residual"](self.queue, self._m_global, self._m_local, fp.data, target.data,
+    def metric_residual(self, fp, target, q, reduce: bool = True,
+                        colour: bool = False) -> float | None:
+        """q = Q (fp − target); returns d = ⟨e, Q e⟩ (``reduce=False``: None, the distance left
+        in the partial sums for :meth:`fista_set_d` / :meth:`fista_decide`, no read-back).
+        ``colour``: q = C Q e (twin :meth:`rtdefocus.reference.ops.NumpyOps.metric_residual`)."""
+        name = "metric_residual"
+        if colour:
+            if "metric_residual_colour" not in self._k:
+                raise InputError("the colour preconditioner needs a metric that has one and no "
+                                 "residual scale")
+            name = "metric_residual_colour"
+        self._k[name](self.queue, self._m_global, self._m_local, fp.data, target.data,
                                    q.data, self._scale.data, self._partials.data, self._h, self._w)
         if not reduce:
             return None

@@ -59,7 +59,8 @@ def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None
 
 def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
                 solver: str = "fista", runtime=None, blur: str = "gather",
-                blur_variant: str | None = None, scale=None, adjoint: str = "exact") -> Solver:
+                blur_variant: str | None = None, scale=None, adjoint: str = "exact",
+                precondition: str | None = "colour") -> Solver:
     """A :class:`~.solvers.Solver` for a kernel field on a backend named by string.
 
     Parameters
@@ -70,10 +71,11 @@ def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = 
     backend : "numpy" | "opencl"
     solver : "fista" | "pg"
     runtime, blur, blur_variant, scale, adjoint : as for :func:`make_solve_ops`.
+    precondition : "colour" | None, as for :class:`~.solvers.Solver`.
     """
     check_solver(solver)                 # before any device work
     if metric is None:
         metric = Metric.ycbcr(DEFAULT_WEIGHTS)
     ops = make_solve_ops(backend, psfs, idx, wts, metric, runtime=runtime, blur=blur,
                          blur_variant=blur_variant, scale=scale, adjoint=adjoint)
-    return Solver(ops, solver=solver)
+    return Solver(ops, solver=solver, precondition=precondition)

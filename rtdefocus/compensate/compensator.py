@@ -107,6 +107,11 @@ class Compensator:
         cost; ``"exact"`` is the true transpose (~2x the cost on a CPU device). Steps are
         accepted on the exact distance either way; on the cubicle the camera-view gain after
         2, 8 and 40 iterations differed by at most 0.01 dB.
+    precondition : "colour" | None
+        FISTA steps along the metric's colour-preconditioned gradient (default; see
+        :class:`~rtdefocus.compensate.solvers.Solver`): chroma converges as fast as luma, for a
+        better picture at every budget (same distance, same cost per iteration). None: plain
+        steps.
 
     Attributes
     ----------
@@ -125,14 +130,19 @@ class Compensator:
                  headroom: tuple[float, float] | None = None, warp_backend: str = "auto",
                  wiener_nsr: float = DEFAULT_WIENER_NSR, blur_variant: str | None = None,
                  surface: str = "keep", brightness: str | float = "auto",
-                 psf_energy: float | None = None, adjoint: str = "fast"):
+                 psf_energy: float | None = None, adjoint: str = "fast",
+                 precondition: str | None = "colour"):
         _check_args(calib, method=method, solver=solver, backend=backend,
                     iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
                     wiener_nsr=wiener_nsr, blur_variant=blur_variant)
         if surface not in SURFACES:
             raise InputError(f"surface must be one of {SURFACES}; got {surface!r}")
         check_adjoint(adjoint)
+        if precondition not in ("colour", None):
+            raise InputError(f"precondition must be 'colour' or None (plain FISTA steps); got "
+                             f"{precondition!r}")
         self.adjoint = adjoint
+        self.precondition = precondition
         if psf_energy is not None and not 0.9 <= float(psf_energy) <= 1.0:
             raise InputError(f"psf_energy must be in [0.9, 1] (the share of each kernel's energy "
                              f"kept, e.g. 0.999) or None; got {psf_energy!r}")
@@ -182,7 +192,7 @@ class Compensator:
             ops = make_solve_ops(self.backend, psfs, calib.pix_idx, calib.pix_wts, metric,
                                  blur="filter2d", blur_variant=blur_variant, scale=scale,
                                  adjoint=adjoint, runtime=self._share_gl(warp_backend))
-            self._solver = Solver(ops, solver=solver)
+            self._solver = Solver(ops, solver=solver, precondition=precondition)
 
     # ------------------------------------------------------------------ public
     @property

@@ -58,7 +58,8 @@ def check_solver(solver: str) -> None:
         raise InputError(f"solver must be one of {SOLVERS}; got {solver!r}")
 
 
-def lipschitz_estimate(psfs: np.ndarray, metric: Metric, size: int = 64) -> float:
+def lipschitz_estimate(psfs: np.ndarray, metric: Metric, size: int = 64,
+                       colour: np.ndarray | None = None) -> float:
     """Estimate of ``L``, the Lipschitz constant of ``∇d = 2 Fᵀ Q (F P − I)``.
 
     For a spatially invariant blur with kernel ψ the Hessian ``2 Fᵀ Q F`` is diagonal in the
@@ -72,6 +73,10 @@ def lipschitz_estimate(psfs: np.ndarray, metric: Metric, size: int = 64) -> floa
     psfs : (N, k, k) float
     metric : Metric
     size : FFT size (≥ k; a finer frequency grid for larger values).
+    colour : (3, 3) symmetric positive definite, optional
+        A colour preconditioner C (:attr:`Metric.colour_preconditioner`): the estimate for the
+        steps along ``C ∇d``, whose Hessian per frequency is similar to
+        ``C^½ (A0 + λ A1) C^½``.
 
     Returns
     -------
@@ -87,6 +92,10 @@ def lipschitz_estimate(psfs: np.ndarray, metric: Metric, size: int = 64) -> floa
     a0, a1 = metric.qmatrices
     # λ_max(A0 + λ A1) for every frequency: eigenvalues of a batch of symmetric 3×3 matrices.
     mats = a0[None, None] + lam[..., None, None] * a1[None, None]
+    if colour is not None:
+        w, v = np.linalg.eigh(np.asarray(colour, dtype=np.float64))
+        root = (v * np.sqrt(w)) @ v.T
+        mats = root @ mats @ root
     top = np.linalg.eigvalsh(mats)[..., -1]
     return float(2.0 * (gain * top).max())
 
@@ -129,6 +138,15 @@ class Solver:
         :func:`rtdefocus.compensate.backends.make_solve_ops`, or use
         :func:`~rtdefocus.compensate.backends.make_solver` for both steps.
     solver : "fista" | "pg"
+    precondition : "colour" | None
+        FISTA only: step along ``C ∇d`` with the metric's colour preconditioner
+        (:attr:`~rtdefocus.reference.metric.Metric.colour_preconditioner`; ignored where the
+        metric has none or the residual is scaled, ``surface="flatten"``). Chroma errors then
+        fall as fast as luma ones: on the 800×600 cubicle at 40 iterations +0.4 dB camera-view
+        PSNR, and the live path's warm start +0.35–0.45 dB at 2 iterations per frame. The
+        clamp to [0, 1] is then not the exact projection in C's metric, so the limit can sit
+        slightly above the plain solver's (0.15–0.4 % in d after 300 iterations at 400×300);
+        every accepted step still lowers d.
 
     Notes
     -----
@@ -137,17 +155,25 @@ class Solver:
     solution; :meth:`run` starts from whatever ``self.P`` holds (warm start).
     """
 
-    def __init__(self, ops, *, solver: str = "fista"):
+    def __init__(self, ops, *, solver: str = "fista", precondition: str | None = "colour"):
         check_solver(solver)
+        if precondition not in ("colour", None):
+            raise InputError(f"precondition must be 'colour' or None; got {precondition!r}")
         self.ops = ops
         self.metric = ops.metric
         self.solver = solver
         self.backend = ops.backend
         self.shape = ops.shape
+        # FISTA's field q is C Q e throughout (every metric_residual of this solver), so that
+        # its gradients G = Fᵀ q and the momentum built from them are all preconditioned.
+        colour = ops.colour_pc if precondition == "colour" and solver == "fista" else None
+        self.precondition = None if colour is None else "colour"
+        self._colour = colour is not None
         # 5 % over the estimate: it is not a strict bound for a spatially varying F (see there).
         # A residual scale S (surface="flatten") comes with a diagonal preconditioner that brings
         # the Hessian back to the plain blur's (ops.lipschitz_factor = 1; NumpyOps.precond).
-        self.L = lipschitz_estimate(ops.psfs, ops.metric) * 1.05 * ops.lipschitz_factor
+        self.L = (lipschitz_estimate(ops.psfs, ops.metric, colour=colour) * 1.05
+                  * ops.lipschitz_factor)
         new = self.ops.new
         self.target, self.target_prev = new(), new()
         self.P, self._P_prev, self._P_alt = new(), new(), new()
@@ -232,7 +258,7 @@ class Solver:
         ops = self.ops
         ops.clamp_copy(self.target, self._P_alt)
         ops.forward(self._P_alt, self._fp_alt)
-        return ops.metric_residual(self._fp_alt, self.target, self._q_alt)
+        return ops.metric_residual(self._fp_alt, self.target, self._q_alt, colour=self._colour)
 
     def keep_better_than_cold(self, d_cold: float | None = None) -> tuple[bool, float, float]:
         """Keep the current start P only if it is at least as close as the cold start.
@@ -252,7 +278,7 @@ class Solver:
         ops = self.ops
         if self._d is None:
             ops.forward(self.P, self._fp)
-            self._d = ops.metric_residual(self._fp, self.target, self._q)
+            self._d = ops.metric_residual(self._fp, self.target, self._q, colour=self._colour)
         if d_cold is None:
             d_cold = self.cold_distance()
         if d_cold < self._d:
@@ -322,7 +348,8 @@ class Solver:
         if self._d is None:
             ops.forward(self.P, self._fp)
             # FISTA keeps the distance on the device (no read-back until the run ends)
-            self._d = ops.metric_residual(self._fp, self.target, self._q, reduce=not fista)
+            self._d = ops.metric_residual(self._fp, self.target, self._q, reduce=not fista,
+                                          colour=self._colour)
         if fista:
             self._run_fista(iterations, tol, info)
         else:
@@ -398,7 +425,8 @@ class Solver:
             dd, pp = ops.fista_step(self.P, self._P_prev, self._G, self._G_prev, None, None,
                                     self._P_alt, sums=tol > 0)
             ops.forward(self._P_alt, self._fp)
-            ops.metric_residual(self._fp, self.target, self._q_alt, reduce=False)
+            ops.metric_residual(self._fp, self.target, self._q_alt, reduce=False,
+                                colour=self._colour)
             ops.fista_decide(k)
             ops.fista_undo(self.P, self._P_alt, self._q, self._q_alt)
             self._P_prev, self.P, self._P_alt = self.P, self._P_alt, self._P_prev

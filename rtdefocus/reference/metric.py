@@ -105,6 +105,25 @@ class Metric:
         m = self.matrix
         return m.T @ np.diag(self.pixel) @ m, m.T @ np.diag(self.spatial) @ m
 
+    @property
+    def colour_preconditioner(self) -> np.ndarray | None:
+        """``C = λ_max(A0) A0⁻¹`` (3×3, symmetric positive definite), or None where it would
+        change nothing (A0 a multiple of the identity, e.g. :meth:`rgb`) or is undefined (A0
+        singular: a zero pixel weight).
+
+        The pixel term's colour directions are unequally stiff: with the default weights
+        (chroma at half the luma weight) A0's eigenvalues span 0.13 … 0.52, so a plain gradient
+        step, sized for the stiffest (luma) direction, moves chroma errors 2.5–4× slower. FISTA
+        on ``C ∇d`` (the colour map commutes with the blur, whose PSFs are the same for every
+        channel) moves every colour direction at the luma's pace, at no extra cost
+        (:class:`~rtdefocus.compensate.solvers.Solver`, ``precondition="colour"``).
+        """
+        a0 = self.qmatrices[0]
+        lam = np.linalg.eigvalsh(a0)
+        if lam[0] <= 1e-9 * lam[-1] or np.allclose(a0, lam[-1] * np.eye(3), rtol=1e-9, atol=0):
+            return None
+        return lam[-1] * np.linalg.inv(a0)
+
 
 def _check_planar(img: np.ndarray, what: str) -> np.ndarray:
     img = np.asarray(img)

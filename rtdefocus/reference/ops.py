@@ -138,6 +138,8 @@ class NumpyOps:
     shape : ``(3, H, W)`` of every image.
     scale_max : the largest scale (1.0 without one).
     precond : (3, H, W) float32 or None, the diagonal preconditioner p of the steps (with a scale).
+    colour_pc : (3, 3) float32 or None, the metric's colour preconditioner
+        (:meth:`metric_residual` with ``colour=True``); None with a scale.
     lipschitz_factor : the solver's Lipschitz estimate for the plain blur times this one: 1.0
         without a scale and with the preconditioner (see :func:`scale_preconditioner`).
     """
@@ -162,6 +164,8 @@ class NumpyOps:
         self.scale_max = 1.0
         self.precond = None
         self.lipschitz_factor = 1.0
+        pc = metric.colour_preconditioner        # (not with a residual scale: DESIGN.md §3)
+        self.colour_pc = None if pc is None or scale is not None else pc.astype(np.float32)
         if scale is not None:
             self.scale = np.ascontiguousarray(scale, dtype=np.float32)
             if self.scale.shape != self.shape:
@@ -208,11 +212,22 @@ class NumpyOps:
         else:
             dst[...] = self._fwd(src, self._psfs_flipped, self.idx, self.wts)
 
-    def metric_residual(self, fp, target, q, reduce: bool = True) -> float | None:
+    def metric_residual(self, fp, target, q, reduce: bool = True,
+                        colour: bool = False) -> float | None:
         """q = Q (fp − target); returns d (``reduce=False``: None, d kept for
-        :meth:`fista_set_d` / :meth:`fista_decide`, as the device keeps its partial sums)."""
+        :meth:`fista_set_d` / :meth:`fista_decide`, as the device keeps its partial sums).
+        ``colour``: q = C Q (fp − target) with the metric's
+        :attr:`~rtdefocus.reference.metric.Metric.colour_preconditioner` C (FISTA's field; d is
+        the same). Not with a scale."""
         e = fp - target
-        if self.scale is None:
+        if colour:
+            if self.scale is not None or self.colour_pc is None:
+                raise InputError("the colour preconditioner needs a metric that has one and no "
+                                 "residual scale")
+            qe = metric_field(e, self.metric)
+            d = _vdot(e, qe)
+            q[...] = np.tensordot(self.colour_pc, qe, axes=1)
+        elif self.scale is None:
             q[...] = metric_field(e, self.metric)
             d = _vdot(e, q)
         else:
