@@ -137,11 +137,15 @@ void blur_adjoint_gpu(__global const float *restrict src, __global float *restri
  * Within a group the taps are blended per pixel, t(u) = sum_s w_s * psi_s(u) (4 vector FMAs with
  * broadcast taps), then applied to every channel: one pass over the K*K taps per group.
  *
- *   gsup int32 (G), asup int32 (GA): per chunk / column-block group, the widest support
- *   half-width of its PSFs (<= RADIUS): taps beyond it are zero and are skipped.
- * blur_forward_cpu(src, dst, psfs, goff, gids, gw, gsup, H, W, NCH)
+ *   gext int32 (G, K): per chunk group and kernel row RADIUS + v, the largest |u| of a nonzero
+ *   tap in any of the group's PSFs (-1: the row is zero in all of them); taps beyond are
+ *   skipped (the zero corners of disk-shaped PSFs, and the rows beyond their support).
+ *   asup int32 (GA), aext int32 (GA, K): per column-block group, the widest support
+ *   half-width of its PSFs (<= RADIUS; the input rows it reaches) and the row extents as gext.
+ * blur_forward_cpu(src, dst, psfs, goff, gids, gw, gext, H, W, NCH)
  *   global size (ceil(NCH / LX) * LX, ceil(H / LY) * LY), local (LX, LY): one chunk per item.
- * blur_adjoint_cpu(src, dst, psfs, goff, gids, gw, agoff, agids, arows, asup, H, W, NCH, NBY)
+ * blur_adjoint_cpu(src, dst, psfs, goff, gids, gw, agoff, agids, arows, asup, aext, H, W,
+ *                  NCH, NBY)
  *   global size (ceil(NCH / LX) * LX, ceil(NBY / LY) * LY), NBY = ceil(H / ROWS_COL): one
  *   column block of ROWS_COL rows x 16 pixels per item. The adjoint at y needs the kernels of
  *   y's neighbours, A(y) = sum_u [sum_s W_s(y+u) psi_s(u)] r(y+u), so the host also lists per
@@ -237,7 +241,7 @@ __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
 void blur_forward_cpu(__global const float *restrict src, __global float *restrict dst,
                       __global const float *restrict psfs, __global const int *restrict goff,
                       __global const int4 *restrict gids, __global const float *restrict gw,
-                      __global const int *restrict gsup, const int H, const int W, const int NCH)
+                      __global const int *restrict gext, const int H, const int W, const int NCH)
 {
     const int cx = get_global_id(0), y = get_global_id(1);
     if (cx >= NCH || y >= H) return;
@@ -249,14 +253,16 @@ void blur_forward_cpu(__global const float *restrict src, __global float *restri
     #pragma unroll
     for (int c = 0; c < CHANNELS; ++c) acc[0][c] = acc[1][c] = (float16)(0.0f);
     for (int g = goff[y * NCH + cx]; g < goff[y * NCH + cx + 1]; ++g) {
-        const int sg = gsup[g];                      /* taps beyond sg are zero */
-        const int ylo = max(y - sg, 0), yhi = min(y + sg, H - 1);
+        const int erow = g * K + RADIUS + y;         /* gext[erow - yr]: row v = y - yr */
+        const int ylo = max(y - RADIUS, 0), yhi = min(y + RADIUS, H - 1);
         const int4 id = max(gids[g], (int4)(0));     /* empty slots (-1) carry weight 0 */
         __global const float *p0 = psfs + id.s0 * KK, *p1 = psfs + id.s1 * KK;
         __global const float *p2 = psfs + id.s2 * KK, *p3 = psfs + id.s3 * KK;
         const float16 w0 = vload16(4 * g + 0, gw), w1 = vload16(4 * g + 1, gw);
         const float16 w2 = vload16(4 * g + 2, gw), w3 = vload16(4 * g + 3, gw);
         for (int yr = ylo; yr <= yhi; ++yr) {          /* input row yr = y - v */
+            const int e = gext[erow - yr];              /* taps beyond |u| = e are zero */
+            if (e < 0) continue;
             float16 V[CHANNELS][NV];
             #pragma unroll
             for (int c = 0; c < CHANNELS; ++c)
@@ -264,7 +270,7 @@ void blur_forward_cpu(__global const float *restrict src, __global float *restri
             const int trow = (RADIUS + y - yr) * K + RADIUS;
             #pragma unroll
             for (int u = -RADIUS; u <= RADIUS; ++u) {
-                if (u < -sg || u > sg) continue;
+                if (u < -e || u > e) continue;
                 const int t = trow + u;
                 /* k_x(u, v) for the 16 pixels: the blend of this group's PSFs */
                 const float16 kx = w0 * p0[t] + w1 * p1[t] + w2 * p2[t] + w3 * p3[t];
@@ -334,11 +340,14 @@ inline void weight_segment(float16 Wv[4][NV], const int4 e, const int yr, const 
 #define ADJ_ROW(J, ILO, IHI)                                                               \
     {                                                                                      \
         const int yr = y0 - RADIUS + (J);                                                  \
-        if (yr >= ylo && yr <= yhi) {                                                      \
+        int em = -1;                     /* widest extent of the kernel rows J - i fed */  \
+        _Pragma("unroll")                                                                  \
+        for (int i = (ILO); i <= (IHI); ++i) em = max(em, ea[(J) - i]);                    \
+        if (yr >= ylo && yr <= yhi && em >= 0) {                                           \
             const int slot = yr & (RING - 1);                                              \
             _Pragma("unroll")                                                              \
             for (int u = -RADIUS; u <= RADIUS; ++u) {                                      \
-                if (u < -sg || u > sg) continue;                        /* zero taps */    \
+                if (u < -em || u > em) continue;                        /* zero taps */    \
                 float16 rv[CHANNELS];                                   /* r(x + u) */     \
                 _Pragma("unroll")                                                          \
                 for (int c = 0; c < CHANNELS; ++c) rv[c] = SEGV(Vr[slot][c], HALO + u);    \
@@ -348,7 +357,8 @@ inline void weight_segment(float16 Wv[4][NV], const int4 e, const int yr, const 
                 const float16 v3 = SEGV(Wr[slot][3], HALO + u);                            \
                 _Pragma("unroll")                                                          \
                 for (int i = (ILO); i <= (IHI); ++i) {                                     \
-                    if (abs((J) - RADIUS - i) > sg) continue;    /* |v| beyond the support */ \
+                    const int e = ea[(J) - i];   /* kernel row J - i: zero beyond |u| = e */ \
+                    if (u < -e || u > e) continue;                                         \
                     const int t = ((J) - i) * K + RADIUS + u;     /* v = J - R - i */ \
                     const float16 kx = v0 * p0[t] + v1 * p1[t] + v2 * p2[t] + v3 * p3[t];   \
                     _Pragma("unroll")                                                      \
@@ -364,6 +374,7 @@ void blur_adjoint_cpu(__global const float *restrict src, __global float *restri
                       __global const int4 *restrict gids, __global const float *restrict gw,
                       __global const int *restrict agoff, __global const int4 *restrict agids,
                       __global const int2 *restrict arows, __global const int *restrict asup,
+                      __global const int *restrict aext,
                       const int H, const int W, const int NCH, const int NBY)
 {
     const int cx = get_global_id(0), by = get_global_id(1);
@@ -388,6 +399,7 @@ void blur_adjoint_cpu(__global const float *restrict src, __global float *restri
         /* input rows where the group's PSFs have weight in this column's reach */
         const int rlo = max(arows[a].x, 0), rhi = min(arows[a].y, H - 1);
         const int sg = asup[a];                      /* taps beyond sg are zero */
+        __global const int *ea = aext + a * K;       /* per kernel row, taps beyond are zero */
         int next = rlo;                              /* next input row to bring into the ring */
         for (int y0 = Y0; y0 < Y1; y0 += ROWS_ADJ) {
             const int ylo = max(y0 - sg, rlo), yhi = min(y0 + ROWS_ADJ - 1 + sg, rhi);

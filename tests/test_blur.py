@@ -208,11 +208,17 @@ def test_nan_stays_local(cl_runtime, variant):
     img[1, 20, 30] = np.nan
     box = np.zeros((3, h, w), bool)
     box[1, 20 - r:20 + r + 1, 30 - r:30 + r + 1] = True   # every pixel the NaN can reach
+    hit = np.isnan(img).astype(np.float64)
     for name, op, ref in (("forward", blur.forward_host, blur_forward),
                           ("adjoint", blur.adjoint_host, blur_adjoint)):
         out = op(img)
         expected = ref(img, psfs, idx, wts, np.float64)
-        assert np.array_equal(np.isnan(out), np.isnan(expected)), f"{name}: NaN pattern differs"
+        # NaN reaches every pixel whose kernel has a nonzero tap on it (PSFs and weights are
+        # >= 0); through a zero tap (0 * NaN) only where the kernel does not skip it (the CPU
+        # variant skips the zero corners of the disks; NumPy computes every tap)
+        must = ref(hit, psfs, idx, wts, np.float64) > 0
+        assert np.all(np.isnan(out)[must]), f"{name}: NaN lost"
+        assert not np.isnan(out[~np.isnan(expected)]).any(), f"{name}: NaN where NumPy has none"
         assert not np.isnan(out[~box]).any(), f"{name}: NaN spread beyond the kernel radius"
         assert_close(out[~box], expected[~box], TOLERANCES["float32"], f"{name} outside the NaN")
 
@@ -344,3 +350,82 @@ def test_fast_adjoint_is_the_transpose_where_the_blend_is_smooth():
     exact = blur_adjoint(x, psfs, idx, wts)
     rel = np.abs(_gradient(ops, x) - exact)[:, 8:-8, 8:-8].mean() / exact.mean()
     assert rel < 0.03, rel
+
+
+# ------------------------------------------------------------------ per-row tap extents (CPU)
+def shaped_psfs(k=13):
+    """Disks of different radii (zero corners), a delta, an off-centre disk (zero rows on one
+    side, asymmetric extents) and two bars with zero rows between them."""
+    from rtdefocus.reference.blur import pillbox_psf
+
+    r = k // 2
+    off = np.roll(pillbox_psf(2.0, k), (-3, 2), axis=(0, 1))     # centre at v = -3, u = +2
+    bars = np.zeros((k, k), np.float32)
+    bars[r - 3, r - 1:r + 2] = 1.0
+    bars[r + 2, r - 4:r + 6] = 1.0
+    delta = np.zeros((k, k), np.float32)
+    delta[r, r] = 1.0
+    psfs = np.stack([pillbox_psf(1.5, k), pillbox_psf(3.2, k), pillbox_psf(5.5, k), delta,
+                     off, bars])
+    return psfs / psfs.sum(axis=(1, 2), keepdims=True)
+
+
+def test_row_extent_tables():
+    """row_extents: per PSF row, the largest |u| of a nonzero tap (-1: zero row), as a loop over
+    the taps finds it; group_row_extents: the widest over a group's ids, -1 slots ignored."""
+    from rtdefocus.cl.blur import group_row_extents, row_extents
+
+    psfs = shaped_psfs()
+    n, k = psfs.shape[:2]
+    r = k // 2
+    ext = row_extents(psfs)
+    assert ext.shape == (n, k) and ext.dtype == np.int32
+    for i in range(n):
+        for row in range(k):
+            us = [abs(c - r) for c in range(k) if psfs[i, row, c] != 0]
+            assert ext[i, row] == (max(us) if us else -1), (i, row)
+    assert ext[3].tolist() == [-1] * r + [0] + [-1] * r                     # the delta
+    assert ext[5, r - 3] == 1 and ext[5, r + 2] == 5 and ext[5, r] == -1   # the bars
+    assert ext[4, r + 3:].max() == -1 and ext[4, r - 3] == 4               # off-centre
+    assert np.all(ext[2] >= ext[1]) and np.all(ext[1] >= ext[0])           # nested disks
+    gids = np.array([[0, 3, -1, -1], [4, 5, -1, -1], [-1, -1, -1, -1], [2, 1, 0, 3]], np.int32)
+    gext = group_row_extents(ext, gids)
+    assert gext.shape == (4, k) and gext.dtype == np.int32
+    np.testing.assert_array_equal(gext[0], ext[0])
+    np.testing.assert_array_equal(gext[1], np.maximum(ext[4], ext[5]))
+    assert np.all(gext[2] == -1)
+    np.testing.assert_array_equal(gext[3], ext[2])
+
+
+@VARIANTS
+@pytest.mark.parametrize("h, w, c", [(48, 64, 3), (41, 53, 1)], ids=["64x48-C3", "53x41-C1"])
+def test_shaped_psfs_match_reference(cl_runtime, variant, h, w, c):
+    """PSFs with zero corners, zero rows and off-centre support, one per region with random
+    blends elsewhere: the CPU forward and adjoint skip each row's zero taps and stay the same
+    operator (bit for bit the result of every tap of the square support)."""
+    from rtdefocus.cl.blur import ClBlur
+
+    psfs = shaped_psfs()
+    _, idx, wts = random_field(h, w, psfs.shape[1], len(psfs), seed=h + w)
+    yy, xx = np.mgrid[0:h, 0:w]
+    alone = xx < w // 2                                   # one PSF per 16 x 12 block there
+    idx[alone] = 0
+    wts[alone] = 0.0
+    idx[alone, 0] = ((yy // 12 + xx // 16) % len(psfs))[alone]
+    wts[alone, 0] = 1.0
+    img = np.random.default_rng(h).random((c, h, w)).astype(np.float32)
+    blur = make_blur(cl_runtime, psfs, idx, wts, c, variant)
+    fwd = blur.forward_host(img)
+    assert_close(fwd, blur_forward(img, psfs, idx, wts, np.float64), TOLERANCES["float32"],
+                 "forward")
+    adj = blur.adjoint_host(img)
+    assert_close(adj, blur_adjoint(img, psfs, idx, wts, np.float64), TOLERANCES["float32"],
+                 "adjoint")
+    if variant == "cpu":
+        try:
+            ClBlur.use_row_extent = False
+            square = make_blur(cl_runtime, psfs, idx, wts, c, variant)
+        finally:
+            ClBlur.use_row_extent = True
+        assert np.array_equal(fwd, square.forward_host(img))
+        assert np.array_equal(adj, square.adjoint_host(img))

@@ -27,7 +27,8 @@ from ..reference.blur import check_field, psf_support
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClBlur", "block_groups", "chunk_groups", "pixel_members"]
+__all__ = ["ClBlur", "block_groups", "chunk_groups", "group_row_extents", "pixel_members",
+           "row_extents"]
 
 CHUNK = 16  # pixels per work-item row chunk in the CPU variant (float16 vectors)
 GROUP = 4   # PSFs blended per pass over the taps in the CPU variant (int4 of ids)
@@ -68,6 +69,9 @@ class ClBlur:
     #: Skip the zero taps beyond each PSF's support (False: every tap of the k x k window, as
     #: before; ``tools/bench_video.py`` compares both in one run).
     use_support = True
+    #: CPU variant: per group and kernel row, skip the taps beyond that row's extent (the zero
+    #: corners of disk-shaped PSFs; zero taps only); False: the group's square support.
+    use_row_extent = True
 
     def __init__(self, runtime, psfs: np.ndarray, idx: np.ndarray, wts: np.ndarray,
                  channels: int = 3, variant: str | None = None):
@@ -174,10 +178,15 @@ class ClBlur:
         self._bufs = [cla.to_device(q, a) for a in (goff, gids, gw, agoff, agids, arows)]
         # per group, the widest support of its PSFs (empty slots, -1, count as 0)
         sup = np.append(self.support, 0).astype(np.int32)
-        gsup = sup[gids].max(1).astype(np.int32)
         asup = sup[agids].max(1).astype(np.int32)
-        self._bufs += [cla.to_device(q, gsup), cla.to_device(q, asup)]
-        b_goff, b_gids, b_gw, b_agoff, b_agids, b_arows, b_gsup, b_asup = (
+        # per group and kernel row, the taps' extent |u| (-1: an all-zero row, skipped)
+        rext = row_extents(self.psfs)
+        if not self.use_row_extent:                   # benchmarks: the square support
+            v = np.abs(np.arange(self.k) - r)
+            rext = np.where(v[None] <= self.support[:, None], self.support[:, None], -1)
+        tables = (group_row_extents(rext, gids), asup, group_row_extents(rext, agids))
+        self._bufs += [cla.to_device(q, a) for a in tables]
+        b_goff, b_gids, b_gw, b_agoff, b_agids, b_arows, b_gext, b_asup, b_aext = (
             b.data for b in self._bufs)
         gl_f = (-(-nch // lx_f) * lx_f, -(-h // ly_f) * ly_f)
         gl_a = (-(-nch // lx_a) * lx_a, -(-nby // ly_a) * ly_a)
@@ -190,13 +199,12 @@ class ClBlur:
 
         def run_fwd(src, dst, wait_for):
             return k_f(q, gl_f, (lx_f, ly_f), src.data, dst.data, self._psfs.data, b_goff,
-                       b_gids, b_gw, b_gsup, self._h, self._w, i32(nch), wait_for=wait_for)
+                       b_gids, b_gw, b_gext, self._h, self._w, i32(nch), wait_for=wait_for)
 
         def run_adj(src, dst, wait_for):
             return k_a(q, gl_a, (lx_a, ly_a), src.data, dst.data, self._psfs.data, b_goff,
-                       b_gids, b_gw, b_agoff, b_agids, b_arows, b_asup, self._h, self._w,
-                       i32(nch),
-                       i32(nby), wait_for=wait_for)
+                       b_gids, b_gw, b_agoff, b_agids, b_arows, b_asup, b_aext, self._h,
+                       self._w, i32(nch), i32(nby), wait_for=wait_for)
 
         self._run_fwd, self._run_adj = run_fwd, run_adj
 
@@ -325,6 +333,29 @@ def chunk_groups(idx: np.ndarray, wts: np.ndarray, n_psfs: int):
     gw = np.bincount(flat, weights=ws_s[valid].astype(np.float64),
                      minlength=n_groups * GROUP * CHUNK).astype(np.float32)
     return goff.astype(np.int32), gids, gw.reshape(n_groups, GROUP, CHUNK)
+
+
+def row_extents(psfs: np.ndarray) -> np.ndarray:
+    """(N, k) int32: per PSF and kernel row ``k // 2 + v``, the largest ``|u|`` of a nonzero tap
+    in that row (-1 where the row is all zero).
+
+    Parameters
+    ----------
+    psfs : (N, k, k), ``psf[k//2 + v, k//2 + u] = k(u, v)``
+    """
+    psfs = np.asarray(psfs)
+    r = psfs.shape[2] // 2
+    dist = np.abs(np.arange(psfs.shape[2]) - r)
+    return np.where(psfs != 0, dist, -1).max(-1).astype(np.int32)
+
+
+def group_row_extents(rext: np.ndarray, gids: np.ndarray) -> np.ndarray:
+    """(G, k) int32: per group of PSF ids (-1 for an empty slot) and kernel row, the widest
+    extent of its PSFs' rows (:func:`row_extents`); -1 where every PSF of the group has a zero
+    row there. Taps beyond it are zero in every PSF of the group: skipping them changes
+    nothing."""
+    table = np.vstack([rext, np.full((1, rext.shape[1]), -1, rext.dtype)])   # id -1: empty
+    return np.ascontiguousarray(table[gids].max(1), dtype=np.int32)
 
 
 def pixel_members(idx: np.ndarray, wts: np.ndarray, n_psfs: int) -> np.ndarray:
