@@ -301,3 +301,78 @@ void metric_curvature(__global const float *restrict fs, __global const float *r
                                     with_dot, scale, H, W);
     reduce_group(scratch, acc, partials);
 }
+
+/* FISTA's spatial preconditioner (twin: rtdefocus.reference.ops.boost_field):
+ *   out = M_F g,  M = I + grad^T Gamma grad  (a weighted graph Laplacian: symmetric, M >= I),
+ * applied per channel to the gradient g = F^T q at the iterate P on its free set F: an element
+ * at a bound whose gradient pushes it out (P <= 0 and g > 0, or P >= 1 and g < 0) is active; it
+ * keeps its plain g and counts as 0 for its free neighbours (so the fixed point is still the
+ * constrained optimum). Edge weights: gx[y, x] between (x, y) and (x + 1, y) (0 in the last
+ * column), gy[y, x] between (x, y) and (x, y + 1) (0 in the last row); float32 (H, W).
+ *   boost_gradient(P, g, gx, gy, out, H, W)   P, g, out: float32 (3, H, W); out distinct from g.
+ * Same launch shape as the metric kernels. */
+#if defined(VARIANT_GPU)
+inline float free_g(__global const float *restrict P, __global const float *restrict g,
+                    const size_t i)
+{
+    const float p = P[i], v = g[i];
+    return ((p <= 0.0f && v > 0.0f) || (p >= 1.0f && v < 0.0f)) ? 0.0f : v;
+}
+
+__kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
+void boost_gradient(__global const float *restrict P, __global const float *restrict g,
+                    __global const float *restrict gx, __global const float *restrict gy,
+                    __global float *restrict out, const int H, const int W)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= W || y >= H) return;
+    const size_t hw = (size_t)H * W, j = IDX((size_t)y, x, W);
+    const float wl = x > 0 ? gx[j - 1] : 0.0f, wr = gx[j];
+    const float wu = y > 0 ? gy[j - W] : 0.0f, wd = gy[j];
+    for (int k = 0; k < 3; ++k) {
+        const size_t i = k * hw + j;
+        const float p = P[i], f = g[i];
+        float o = f;
+        if (!((p <= 0.0f && f > 0.0f) || (p >= 1.0f && f < 0.0f))) {   /* free */
+            if (x > 0) o += wl * (f - free_g(P, g, i - 1));
+            if (x < W - 1) o += wr * (f - free_g(P, g, i + 1));
+            if (y > 0) o += wu * (f - free_g(P, g, i - W));
+            if (y < H - 1) o += wd * (f - free_g(P, g, i + W));
+        }
+        out[i] = o;      /* an active element keeps its plain g */
+    }
+}
+#else
+/* g with its active elements zeroed, at pixels xs .. xs + 15 of row offset r (0 outside). */
+inline float16 free16(__global const float *restrict P, __global const float *restrict g,
+                      const size_t r, const int xs, const int W)
+{
+    const float16 p = ld16(P, r, xs, W), v = ld16(g, r, xs, W);
+    const int16 act = (p <= 0.0f & v > 0.0f) | (p >= 1.0f & v < 0.0f);
+    return select(v, (float16)(0.0f), act);
+}
+
+__kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
+void boost_gradient(__global const float *restrict P, __global const float *restrict g,
+                    __global const float *restrict gx, __global const float *restrict gy,
+                    __global float *restrict out, const int H, const int W)
+{
+    const int x0 = get_global_id(0) * 16, y = get_global_id(1);
+    if (x0 >= W || y >= H) return;
+    const size_t hw = (size_t)H * W, row = (size_t)y * W;
+    /* edge weights (ld16 gives 0 outside the frame: no edge there) */
+    const float16 wl = ld16(gx, row, x0 - 1, W), wr = ld16(gx, row, x0, W);
+    const float16 wu = y > 0 ? ld16(gy, row - W, x0, W) : (float16)(0.0f);
+    const float16 wd = ld16(gy, row, x0, W);
+    for (int k = 0; k < 3; ++k) {
+        const size_t r = k * hw + row;
+        const float16 p = ld16(P, r, x0, W), v = ld16(g, r, x0, W);
+        const int16 act = (p <= 0.0f & v > 0.0f) | (p >= 1.0f & v < 0.0f);
+        const float16 f = select(v, (float16)(0.0f), act);
+        float16 o = f + wl * (f - free16(P, g, r, x0 - 1, W)) + wr * (f - free16(P, g, r, x0 + 1, W));
+        if (y > 0) o += wu * (f - free16(P, g, r - W, x0, W));
+        if (y < H - 1) o += wd * (f - free16(P, g, r + W, x0, W));
+        st16(out, r, x0, W, select(o, v, act));
+    }
+}
+#endif

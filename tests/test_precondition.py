@@ -1,5 +1,6 @@
-"""FISTA's colour preconditioner (Metric.colour_preconditioner, Solver(precondition="colour")):
-the same distance, chroma errors falling as fast as luma ones, OpenCL equal to NumPy."""
+"""FISTA's preconditioners (Solver(precondition=...)): the colour one (Metric.colour_preconditioner:
+chroma errors falling as fast as luma ones) and the spatial one (boost_gammas, boost_field: the
+fine pattern of blurry regions converging faster); the same distance, OpenCL equal to NumPy."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ from test_metric import METRICS, SMALL, VARIANTS, make_field
 import rtdefocus as rd
 from rtdefocus import sim
 from rtdefocus.compensate.backends import make_solver
-from rtdefocus.compensate.solvers import lipschitz_estimate
+from rtdefocus.compensate.solvers import BOOST_CAP, _spectra, boost_gammas, lipschitz_estimate
 from rtdefocus.errors import InputError
 from rtdefocus.reference.metric import DEFAULT_WEIGHTS, Metric
+from rtdefocus.reference.ops import boost_edges, boost_field
 
 
 def test_the_preconditioner_equalises_the_colour_directions_of_the_pixel_term():
@@ -56,7 +58,7 @@ def test_colour_preconditioned_fista_is_closer_at_every_budget_and_stays_monoton
     (psfs, idx, wts), target = _photo_like_problem()
     m = Metric.ycbcr(DEFAULT_WEIGHTS)
     runs = {}
-    for pc in (None, "colour"):
+    for pc in (None, "colour", "colour+spatial"):
         s = make_solver(psfs, idx, wts, m, backend="numpy", solver="fista", precondition=pc)
         assert s.precondition == pc
         P, info = s.solve(target, iterations=12)
@@ -64,11 +66,13 @@ def test_colour_preconditioned_fista_is_closer_at_every_budget_and_stays_monoton
         assert (np.diff(d) <= 1e-6 * d[:-1]).all(), f"{pc}: the distance increased: {d}"
         assert P.min() >= 0.0 and P.max() <= 1.0
         runs[pc] = d
-    plain, colour = runs[None], runs["colour"]
-    assert plain[0] == colour[0]                       # the same start and the same distance
+    plain, colour, both = runs[None], runs["colour"], runs["colour+spatial"]
+    assert plain[0] == colour[0] == both[0]            # the same start and the same distance
     assert (colour[1:] < plain[1:]).all(), (plain, colour)
-    # what the plain solver reaches in 12 iterations, the preconditioned one does sooner
+    assert (both[1:] < colour[1:]).all(), (colour, both)
+    # what the plain solver reaches in 12 iterations, the preconditioned ones do sooner
     assert colour[10] < plain[12], (plain, colour)
+    assert both[6] < plain[12], (plain, both)
 
 
 def test_colour_preconditioned_fista_converges_close_to_the_plain_optimum():
@@ -78,11 +82,12 @@ def test_colour_preconditioned_fista_converges_close_to_the_plain_optimum():
     (psfs, idx, wts), target = _colourful_problem()
     m = Metric.ycbcr(DEFAULT_WEIGHTS)
     end = {}
-    for pc in (None, "colour"):
+    for pc in (None, "colour", "colour+spatial"):
         s = make_solver(psfs, idx, wts, m, backend="numpy", solver="fista", precondition=pc,
                         blur="filter2d")
         end[pc] = s.solve(target, iterations=250)[1].distances[-1]
     assert end["colour"] <= 1.02 * end[None], end
+    assert end["colour+spatial"] <= 1.02 * end[None], end
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
@@ -91,9 +96,9 @@ def test_cl_colour_field_matches_numpy(cl_runtime, variant):
     and a preconditioned FISTA solve on both backends."""
     (psfs, idx, wts), target = _colourful_problem()
     m = METRICS["ycbcr"]
-    s_np = make_solver(psfs, idx, wts, m, backend="numpy", solver="fista")
+    s_np = make_solver(psfs, idx, wts, m, backend="numpy", solver="fista", precondition="colour")
     s_cl = make_solver(psfs, idx, wts, m, backend="opencl", solver="fista", runtime=cl_runtime,
-                       blur_variant=variant)
+                       blur_variant=variant, precondition="colour")
     assert s_np.precondition == s_cl.precondition == "colour"
     P0 = np.random.default_rng(3).random(target.shape, dtype=np.float32)
     fields = {}
@@ -127,4 +132,80 @@ def test_where_the_preconditioner_does_not_apply_and_bad_values():
     with pytest.raises(InputError, match="precondition must be"):
         rd.Compensator(calib, backend="numpy", precondition="yes")
     assert rd.Compensator(calib, backend="numpy", precondition=None)._solver.precondition is None
+    assert rd.Compensator(calib, backend="numpy", precondition="colour")._solver.precondition \
+        == "colour"
+    # (these kernels are too sharp to leave room for the spatial one: it stays off)
     assert rd.Compensator(calib, backend="numpy")._solver.precondition == "colour"
+    calib = sim.oracle_calibration(sim.VirtualProCam("cubicle", projector_size=(240, 180),
+                                                     camera_size=(320, 240)))
+    assert rd.Compensator(calib, backend="numpy")._solver.precondition == "colour+spatial"
+    flat = rd.Compensator(calib, backend="numpy", surface="flatten")
+    assert flat._solver.precondition is None      # a residual scale keeps plain steps
+
+
+# --------------------------------------------------------------------------- the spatial one
+def test_boost_weights_grow_with_the_blur_and_keep_the_step_bound():
+    m = Metric.ycbcr(DEFAULT_WEIGHTS)
+    c = m.colour_preconditioner
+    from test_metric import disc
+    psfs = np.stack([disc(r, 13) for r in (0.4, 1.0, 2.0, 3.0, 5.0)])
+    L = lipschitz_estimate(psfs, m, colour=c) * 1.05
+    g = boost_gammas(psfs, m, L, c)
+    assert g[0] < 0.05 and (np.diff(g) >= 0).all() and g[-1] == BOOST_CAP, g
+    # each PSF's preconditioned curvature stays within the step's bound at every frequency
+    spec, lam, top = _spectra(psfs, m, 64, c)
+    worst = (2 * spec * top[None] * (1 + g[:, None, None] * lam[None])).max()
+    assert worst <= L / 1.05 * (1 + 1e-9), (worst, L)
+    assert boost_gammas(psfs, m, L, c, cap=0.5).max() == 0.5
+
+
+def test_boost_field_is_symmetric_on_the_free_set_and_keeps_active_elements():
+    rng = np.random.default_rng(4)
+    h, w = 9, 13
+    idx = rng.integers(0, 3, (h, w, 4)).astype(np.int32)
+    wts = rng.random((h, w, 4)).astype(np.float32)
+    gx, gy = boost_edges(np.array([0.0, 1.0, 2.0]), idx, wts)
+    assert (gx[:, -1] == 0).all() and (gy[-1] == 0).all() and gx.min() >= 0
+    P = rng.random((3, h, w)).astype(np.float32)            # all free
+    a, b = rng.standard_normal((2, 3, h, w)).astype(np.float32)
+    Ma, Mb = boost_field(a, P, gx, gy), boost_field(b, P, gx, gy)
+    assert np.vdot(Ma, b) == pytest.approx(np.vdot(a, Mb), rel=1e-5)      # M symmetric
+    assert np.vdot(Ma, a) >= np.vdot(a, a) * (1 - 1e-6)                  # M >= I
+    # active elements (at a bound, pushed out) keep their plain value, and count as 0
+    P2 = P.copy()
+    P2[0, 4, 6], a2 = 0.0, a.copy()
+    a2[0, 4, 6] = abs(a2[0, 4, 6]) + 1.0
+    out = boost_field(a2, P2, gx, gy)
+    assert out[0, 4, 6] == a2[0, 4, 6]
+    zeroed = a2.copy()
+    zeroed[0, 4, 6] = 0.0
+    ref = boost_field(zeroed, P2, gx, gy)
+    ref[0, 4, 6] = a2[0, 4, 6]
+    assert_close(out, ref, 1e-6, "active element")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_cl_boost_gradient_matches_numpy(cl_runtime, variant):
+    (psfs, idx, wts), target = _colourful_problem()    # saturated: many active elements
+    m = METRICS["ycbcr"]
+    s_np = make_solver(psfs, idx, wts, m, backend="numpy", solver="fista")
+    s_cl = make_solver(psfs, idx, wts, m, backend="opencl", solver="fista", runtime=cl_runtime,
+                       blur_variant=variant)
+    assert s_np.precondition == s_cl.precondition == "colour+spatial"
+    rng = np.random.default_rng(6)
+    P = np.clip(rng.random(target.shape) * 1.4 - 0.2, 0, 1).astype(np.float32)
+    g = rng.standard_normal(target.shape).astype(np.float32)
+    outs = {}
+    for s in (s_np, s_cl):
+        ops = s.ops
+        bp, bg, bo = ops.new(), ops.new(), ops.new()
+        ops.upload(P, bp)
+        ops.upload(g, bg)
+        ops.boost_gradient(bp, bg, bo)
+        outs[s.backend] = ops.download(bo)
+    assert_close(outs["opencl"], outs["numpy"], TOLERANCES["float32"], "M_F g")
+    assert not np.allclose(outs["numpy"], g)             # it does something
+    P_np, i_np = s_np.solve(target, iterations=5)
+    P_cl, i_cl = s_cl.solve(target, iterations=5)
+    assert_close(P_cl, P_np, TOLERANCES["float32"], "FISTA with both preconditioners")
+    assert i_cl.distances == pytest.approx(i_np.distances, rel=TOLERANCES["float32"])

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..reference.blur import check_field
 from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
-from ..reference.ops import check_adjoint, scale_preconditioner
+from ..reference.ops import boost_edges, check_adjoint, scale_preconditioner
 from .blur import ClBlur
 
 log = logging.getLogger(__name__)
@@ -171,7 +171,9 @@ class ClSolveOps:
         # Own kernel objects (cl.Kernel): kernel arguments are per-object state, and programs are
         # shared between instances through the runtime's cache.
         self._k = {name: cl.Kernel(self._prg_m, name) for name in
-                   ("metric_residual", "metric_update", "metric_curvature")}
+                   ("metric_residual", "metric_update", "metric_curvature", "boost_gradient")}
+        self._field = check_field(psfs, idx, wts)[1:]     # (idx, wts) for set_boost
+        self._boost = None
         if self._prg_mc is not None:
             self._k["metric_residual_colour"] = cl.Kernel(self._prg_mc, "metric_residual")
         self._k.update({name: cl.Kernel(self._prg_s, name) for name in
@@ -251,6 +253,19 @@ class ClSolveOps:
         if not reduce:
             return None
         return float(self._reduce(self._m_groups, 1)[0])
+
+    def set_boost(self, gamma_psf) -> None:
+        """FISTA's spatial preconditioner from one weight per PSF (twin
+        :meth:`rtdefocus.reference.ops.NumpyOps.set_boost`): its edge weights, uploaded once."""
+        gx, gy = boost_edges(gamma_psf, *self._field)
+        self._boost = (self._cla.to_device(self.queue, gx), self._cla.to_device(self.queue, gy))
+
+    def boost_gradient(self, P, g, out) -> None:
+        """out = M_F g (``metric.cl`` ``boost_gradient``; twin
+        :func:`rtdefocus.reference.ops.boost_field`)."""
+        gx, gy = self._boost
+        self._k["boost_gradient"](self.queue, self._m_global, self._m_local, P.data, g.data,
+                                  gx.data, gy.data, out.data, self._h, self._w)
 
     def metric_update(self, fp, fs, t: float, target, fp_out, q) -> float:
         """fp_out = fp + t fs; q = Q (fp_out − target); returns d."""

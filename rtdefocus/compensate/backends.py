@@ -60,7 +60,7 @@ def make_solve_ops(backend: str, psfs, idx, wts, metric: Metric, *, runtime=None
 def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = "numpy",
                 solver: str = "fista", runtime=None, blur: str = "gather",
                 blur_variant: str | None = None, scale=None, adjoint: str = "exact",
-                precondition: str | None = "colour") -> Solver:
+                precondition: str | None = "colour+spatial") -> Solver:
     """A :class:`~.solvers.Solver` for a kernel field on a backend named by string.
 
     Parameters
@@ -71,7 +71,7 @@ def make_solver(psfs, idx, wts, metric: Metric | None = None, *, backend: str = 
     backend : "numpy" | "opencl"
     solver : "fista" | "pg"
     runtime, blur, blur_variant, scale, adjoint : as for :func:`make_solve_ops`.
-    precondition : "colour" | None, as for :class:`~.solvers.Solver`.
+    precondition : "colour+spatial" | "colour" | None, as for :class:`~.solvers.Solver`.
     """
     check_solver(solver)                 # before any device work
     if metric is None:

@@ -22,7 +22,8 @@ from .blur import (
 from .lut import encode_lut, inverse_lut_tables
 from .metric import Metric, metric_field
 
-__all__ = ["ADJOINTS", "NumpyOps", "carry_field", "check_adjoint", "scale_preconditioner"]
+__all__ = ["ADJOINTS", "NumpyOps", "boost_edges", "boost_field", "carry_field", "check_adjoint",
+           "scale_preconditioner"]
 
 #: How FISTA's gradient ``Fᵀ q`` is formed. ``"exact"``: the transpose of F, each tap weighted by
 #: the blend at the pixel it came from (``blur_adjoint``). ``"fast"``: the forward blur with the
@@ -111,6 +112,50 @@ def carry_field(src, map_xy, valid, fallback, base_prev=None, base_new=None,
     if clamp:
         np.clip(out, 0.0, 1.0, out=out)
     return out.astype(np.float32)
+
+
+def boost_edges(gamma_psf, idx, wts) -> tuple[np.ndarray, np.ndarray]:
+    """The edge weights of FISTA's spatial preconditioner ``M = I + ∇ᵀ Γ ∇`` from one weight
+    per PSF (:func:`rtdefocus.compensate.solvers.boost_gammas`): each pixel blends its PSFs'
+    weights like their kernels, and an edge takes the smaller of its two pixels'.
+
+    Returns
+    -------
+    gx, gy : (H, W) float32
+        ``gx[y, x]``: edge (x, y)–(x + 1, y), 0 in the last column; ``gy[y, x]``: edge
+        (x, y)–(x, y + 1), 0 in the last row (``kernels/metric.cl`` ``boost_gradient``).
+    """
+    g = (np.asarray(gamma_psf, np.float64)[np.asarray(idx)] * np.asarray(wts)).sum(-1)
+    gx, gy = np.zeros(g.shape, np.float32), np.zeros(g.shape, np.float32)
+    gx[:, :-1] = np.minimum(g[:, 1:], g[:, :-1])
+    gy[:-1] = np.minimum(g[1:], g[:-1])
+    return gx, gy
+
+
+def boost_field(g, P, gx, gy) -> np.ndarray:
+    """``M_F g`` with ``M = I + ∇ᵀ Γ ∇`` per channel on the free set F of the iterate P: an
+    element at a bound whose gradient pushes it out (``P <= 0, g > 0`` or ``P >= 1, g < 0``)
+    keeps its plain ``g`` and counts as 0 for its neighbours (twin of ``metric.cl``
+    ``boost_gradient``).
+
+    Parameters
+    ----------
+    g, P : (3, H, W) float32
+    gx, gy : (H, W) float32, from :func:`boost_edges`
+    """
+    g = np.asarray(g, np.float32)
+    P = np.asarray(P, np.float32)
+    act = ((P <= 0) & (g > 0)) | ((P >= 1) & (g < 0))
+    f = np.where(act, np.float32(0), g)
+    out = f.copy()
+    d = gx[None, :, :-1] * (f[:, :, :-1] - f[:, :, 1:])      # γ (f(x) − f(x + 1))
+    out[:, :, :-1] += d
+    out[:, :, 1:] -= d
+    d = gy[None, :-1] * (f[:, :-1] - f[:, 1:])
+    out[:, :-1] += d
+    out[:, 1:] -= d
+    out[act] = g[act]
+    return out
 
 
 class NumpyOps:
@@ -237,6 +282,14 @@ class NumpyOps:
             d = _vdot(e, qe)
         self._pending_d = d
         return d if reduce else None
+
+    def set_boost(self, gamma_psf) -> None:
+        """FISTA's spatial preconditioner from one weight per PSF (:func:`boost_edges`)."""
+        self._boost = boost_edges(gamma_psf, self.idx, self.wts)
+
+    def boost_gradient(self, P, g, out) -> None:
+        """out = :func:`boost_field` (g, P) with the weights of :meth:`set_boost`."""
+        out[...] = boost_field(g, P, *self._boost)
 
     def metric_update(self, fp, fs, t, target, fp_out, q) -> float:
         fp_out[...] = fp + np.float32(t) * fs
