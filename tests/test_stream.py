@@ -550,6 +550,30 @@ def test_cli_play_image_to_image_uses_cache(tmp_path, calib, capsys):
     assert np.array_equal(read_image(tmp_path / "o.png"), first)
 
 
+def test_cli_play_precondition_reaches_the_compensator(tmp_path, calib):
+    """`play --precondition`: the slide comes out as the API's Compensator with that setting
+    makes it, the settings differ in their pictures, and the slide cache tells them apart."""
+    setup = calib.save(tmp_path / "setup.npz")
+    slide = synthetic_frames(1, seed=9)[0]
+    write_image(tmp_path / "slide.png", slide)
+    outs = {}
+    for pc in ("colour+spatial", "none"):
+        args = ["-q", "play", str(setup), str(tmp_path / "slide.png"), "--out",
+                str(tmp_path / f"{pc}.png"), "--iterations", "3", "--backend", "numpy",
+                "--precondition", pc, "--cache", str(tmp_path / "cache")]
+        assert cli.main(args) == 0
+        outs[pc] = read_image(tmp_path / f"{pc}.png")
+        api = rd.Compensator(calib, backend="numpy", precondition=None if pc == "none" else pc)
+        expect = api.compensate(slide, iterations=3)
+        assert np.abs(outs[pc].astype(int) - expect).max() <= 1, pc
+    assert not np.array_equal(outs["colour+spatial"], outs["none"])
+    assert len(list((tmp_path / "cache").rglob("*.png"))) == 2
+    with pytest.raises(SystemExit) as bad:                 # argparse names the choices
+        cli.main(["-q", "play", str(setup), str(tmp_path / "slide.png"), "--out", "null",
+                  "--precondition", "luma"])
+    assert bad.value.code == 2
+
+
 def test_cli_play_missing_source_exits_1(tmp_path, calib, capsys):
     setup = calib.save(tmp_path / "setup.npz")
     assert cli.main(["play", str(setup), str(tmp_path / "nope.mp4"), "--out", "null"]) == 1

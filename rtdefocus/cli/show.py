@@ -108,6 +108,10 @@ def _add_play(sub):
     p.add_argument("--psf-energy", type=float, metavar="E",
                    help="cut each kernel to the window holding this share of its energy, e.g. "
                    "0.999: faster solves, a slightly different blur model (default: as calibrated)")
+    p.add_argument("--precondition", default="colour+spatial",
+                   choices=("colour+spatial", "colour", "none"),
+                   help="how the solver's steps are preconditioned (default colour+spatial: "
+                   "the most picture per iteration; none: plain FISTA steps, for comparison)")
     p.add_argument("--iterations", type=int,
                    help="solver iterations per frame (default: adaptive in the window, the "
                    "Compensator's budget for files, until converged for slides)")
@@ -130,7 +134,8 @@ def cmd_play(args) -> int:
     calib = Calibration.load(args.calibration)
     flat = {} if args.flatten is None else {"surface": "flatten", "brightness": args.flatten}
     comp = Compensator(calib, backend=args.backend, method=args.method,
-                       psf_energy=args.psf_energy, **flat)
+                       psf_energy=args.psf_energy, **flat,
+                       precondition=None if args.precondition == "none" else args.precondition)
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
                      camera_fps=args.camera_fps) as source:

@@ -173,7 +173,7 @@ class Player(SlidesMixin):
         """What changes a compensated still: the slide cache keys on it (with the calibration)."""
         comp = self.comp
         names = ("method", "solver_name", "weights", "headroom", "tol", "backend", "surface",
-                 "brightness")
+                 "brightness", "precondition", "adjoint")
         return {"compensator": {n: getattr(comp, n, None) for n in names},
                 "iterations": self.iterations, "refine_tol": self.refine_tol,
                 "refine_max": self.refine_max, "rtdefocus": __version__}
