@@ -121,7 +121,9 @@ def test_cl_colour_field_matches_numpy(cl_runtime, variant):
 def test_where_the_preconditioner_does_not_apply_and_bad_values():
     (psfs, idx, wts), _ = _colourful_problem()
     assert make_solver(psfs, idx, wts, METRICS["ycbcr"], solver="pg").precondition is None
-    assert make_solver(psfs, idx, wts, Metric.rgb(), solver="fista").precondition is None
+    assert make_solver(psfs, idx, wts, Metric.rgb(), solver="fista").precondition == "spatial"
+    assert make_solver(psfs, idx, wts, Metric.rgb(), solver="fista",
+                       precondition="colour").precondition is None
     ops = make_solver(psfs, idx, wts, Metric.rgb()).ops
     with pytest.raises(InputError, match="colour preconditioner"):
         ops.metric_residual(ops.new(), ops.new(), ops.new(), colour=True)

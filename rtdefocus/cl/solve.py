@@ -155,6 +155,7 @@ class ClSolveOps:
         self._sums_host = np.zeros(4, np.float32)
         self._codes = cla.zeros(self.queue, (h, w, 3), np.uint8)
         self.scale_max = 1.0
+        self.has_scale = scale is not None
         self.precond = None
         self.lipschitz_factor = 1.0                 # with the preconditioner, as in NumpyOps
         self._scale = self._partials                # never read without HAS_SCALE

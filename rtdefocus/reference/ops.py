@@ -182,6 +182,7 @@ class NumpyOps:
     metric : Metric
     shape : ``(3, H, W)`` of every image.
     scale_max : the largest scale (1.0 without one).
+    has_scale : whether the residual is scaled.
     precond : (3, H, W) float32 or None, the diagonal preconditioner p of the steps (with a scale).
     colour_pc : (3, 3) float32 or None, the metric's colour preconditioner
         (:meth:`metric_residual` with ``colour=True``); None with a scale.
@@ -207,6 +208,7 @@ class NumpyOps:
         self.shape = (3, h, w)
         self.scale = None
         self.scale_max = 1.0
+        self.has_scale = scale is not None
         self.precond = None
         self.lipschitz_factor = 1.0
         pc = metric.colour_preconditioner        # (not with a residual scale: DESIGN.md §3)
