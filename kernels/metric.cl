@@ -312,11 +312,16 @@ void metric_curvature(__global const float *restrict fs, __global const float *r
  *   boost_gradient(P, g, gx, gy, out, H, W)   P, g, out: float32 (3, H, W); out distinct from g.
  * Same launch shape as the metric kernels. */
 #if defined(VARIANT_GPU)
+/* Element at a bound that its gradient v pushes out (the free set's complement). */
+inline bool active(const float p, const float v)
+{
+    return (p <= 0.0f && v > 0.0f) || (p >= 1.0f && v < 0.0f);
+}
+
 inline float free_g(__global const float *restrict P, __global const float *restrict g,
                     const size_t i)
 {
-    const float p = P[i], v = g[i];
-    return ((p <= 0.0f && v > 0.0f) || (p >= 1.0f && v < 0.0f)) ? 0.0f : v;
+    return active(P[i], g[i]) ? 0.0f : g[i];
 }
 
 __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
@@ -333,7 +338,7 @@ void boost_gradient(__global const float *restrict P, __global const float *rest
         const size_t i = k * hw + j;
         const float p = P[i], f = g[i];
         float o = f;
-        if (!((p <= 0.0f && f > 0.0f) || (p >= 1.0f && f < 0.0f))) {   /* free */
+        if (!active(p, f)) {
             if (x > 0) o += wl * (f - free_g(P, g, i - 1));
             if (x < W - 1) o += wr * (f - free_g(P, g, i + 1));
             if (y > 0) o += wu * (f - free_g(P, g, i - W));
@@ -343,13 +348,18 @@ void boost_gradient(__global const float *restrict P, __global const float *rest
     }
 }
 #else
+/* Lanes at a bound that their gradient v pushes out (the free set's complement). */
+inline int16 active16(const float16 p, const float16 v)
+{
+    return (p <= 0.0f & v > 0.0f) | (p >= 1.0f & v < 0.0f);
+}
+
 /* g with its active elements zeroed, at pixels xs .. xs + 15 of row offset r (0 outside). */
 inline float16 free16(__global const float *restrict P, __global const float *restrict g,
                       const size_t r, const int xs, const int W)
 {
-    const float16 p = ld16(P, r, xs, W), v = ld16(g, r, xs, W);
-    const int16 act = (p <= 0.0f & v > 0.0f) | (p >= 1.0f & v < 0.0f);
-    return select(v, (float16)(0.0f), act);
+    const float16 v = ld16(g, r, xs, W);
+    return select(v, (float16)(0.0f), active16(ld16(P, r, xs, W), v));
 }
 
 __kernel __attribute__((reqd_work_group_size(LX, LY, 1)))
@@ -366,8 +376,8 @@ void boost_gradient(__global const float *restrict P, __global const float *rest
     const float16 wd = ld16(gy, row, x0, W);
     for (int k = 0; k < 3; ++k) {
         const size_t r = k * hw + row;
-        const float16 p = ld16(P, r, x0, W), v = ld16(g, r, x0, W);
-        const int16 act = (p <= 0.0f & v > 0.0f) | (p >= 1.0f & v < 0.0f);
+        const float16 v = ld16(g, r, x0, W);
+        const int16 act = active16(ld16(P, r, x0, W), v);
         const float16 f = select(v, (float16)(0.0f), act);
         float16 o = f + wl * (f - free16(P, g, r, x0 - 1, W)) + wr * (f - free16(P, g, r, x0 + 1, W));
         if (y > 0) o += wu * (f - free16(P, g, r - W, x0, W));

@@ -31,14 +31,18 @@ def _pow2_floor(n: int) -> int:
     return 1 << (max(1, int(n)).bit_length() - 1)
 
 
-def metric_defines(metric: Metric) -> dict:
-    """The ``-D`` constants of ``metric.cl`` for a :class:`Metric` (Q = A0 + A1 Lap)."""
+def metric_defines(metric: Metric, colour=None) -> dict:
+    """The ``-D`` constants of ``metric.cl`` for a :class:`Metric` (Q = A0 + A1 Lap), and with
+    ``colour`` (a 3x3 colour preconditioner C) those of its COLOUR_PC build."""
     a0, a1 = metric.qmatrices
     out = {"HAS_SPATIAL": int(bool(metric.spatial.any()))}
-    for name, m in (("A0", a0), ("A1", a1)):
+    mats = (("A0", a0), ("A1", a1)) + ((("PC", colour),) if colour is not None else ())
+    for name, m in mats:
         for r in range(3):
             for c in range(3):
                 out[f"{name}_{r}{c}"] = f"{float(m[r, c]):.9e}f"
+    if colour is not None:
+        out["COLOUR_PC"] = 1
     return out
 
 
@@ -127,10 +131,8 @@ class ClSolveOps:
         self.colour_pc = None if pc is None else pc.astype(np.float32)
         self._prg_mc = None
         if pc is not None:
-            cdef = {f"PC_{r}{c}": f"{float(pc[r, c]):.9e}f" for r in range(3) for c in range(3)}
-            self._prg_mc = runtime.program("metric.cl", {**metric_defines(metric), **mdef,
-                                                         "LX": lx, "LY": ly, "COLOUR_PC": 1,
-                                                         **cdef})
+            self._prg_mc = runtime.program("metric.cl", {**metric_defines(metric, pc), **mdef,
+                                                         "LX": lx, "LY": ly})
         sdef = {"ITEMS": items, "VEC": vec, "ENC_T": ENC_T, "ENC_STEPS": ENC_STEPS}
         pdef = {} if scale is None else {"PRECOND": 1}
         self._prg_s = runtime.program("solver.cl", {"WG": wg, **sdef, **pdef})
@@ -173,7 +175,7 @@ class ClSolveOps:
         # shared between instances through the runtime's cache.
         self._k = {name: cl.Kernel(self._prg_m, name) for name in
                    ("metric_residual", "metric_update", "metric_curvature", "boost_gradient")}
-        self._field = check_field(psfs, idx, wts)[1:]     # (idx, wts) for set_boost
+        self._field = (idx, wts)                  # for set_boost (ClBlur checked them)
         self._boost = None
         if self._prg_mc is not None:
             self._k["metric_residual_colour"] = cl.Kernel(self._prg_mc, "metric_residual")

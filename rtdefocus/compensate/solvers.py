@@ -115,6 +115,10 @@ def _spectra(psfs, metric: Metric, size: int, colour):
     return spec, lam, np.linalg.eigvalsh(mats)[..., -1]
 
 
+#: The solver's margin over :func:`lipschitz_estimate` (not a strict bound for a spatially
+#: varying F): ``L = L_MARGIN * estimate``; :func:`boost_gammas` works within the estimate itself.
+L_MARGIN = 1.05
+
 #: The largest weight of the spatial preconditioner (:func:`boost_gammas`). On the 800×600
 #: cubicle (oracle kernels, PSF radii 1–6 px; eval-like clip, 2 cores, PoCL) a cap of 2 gave
 #: +0.44 dB at 2 iterations per frame on a 14 px/frame pan and +0.26 dB at 40 cold iterations;
@@ -131,8 +135,8 @@ def boost_gammas(psfs: np.ndarray, metric: Metric, L: float, colour=None, cap: f
     below the step size's bound ``L`` (set by the sharpest PSF and by low frequencies) and
     those components — the fine pre-sharpening pattern — converge slowly. M multiplies
     frequency ω by ``1 + γ λ(ω)``; each PSF gets the largest γ (up to ``cap``) that keeps its
-    own ``2 |ψ̂(ω)|² (1 + γ λ(ω)) λ_max(C^½ Q(ω) C^½)`` within ``L / 1.05`` (the bound without
-    its margin): the sharpest PSF gets 0, the blurriest the most, and the step stays ``2/L``.
+    own ``2 |ψ̂(ω)|² (1 + γ λ(ω)) λ_max(C^½ Q(ω) C^½)`` within ``L / L_MARGIN`` (the bound
+    without its margin): the sharpest PSF gets 0, the blurriest the most, and the step stays ``2/L``.
 
     Parameters
     ----------
@@ -146,7 +150,7 @@ def boost_gammas(psfs: np.ndarray, metric: Metric, L: float, colour=None, cap: f
     spec, lam, top = _spectra(psfs, metric, size, colour)
     cur = 2.0 * spec * top[None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        room = np.where(cur * lam[None] > 0, (L / 1.05 - cur) / (cur * lam[None]), np.inf)
+        room = np.where(cur * lam[None] > 0, (L / L_MARGIN - cur) / (cur * lam[None]), np.inf)
     return np.clip(room.reshape(len(spec), -1).min(axis=1), 0.0, float(cap))
 
 
@@ -226,7 +230,7 @@ class Solver:
         # 5 % over the estimate: it is not a strict bound for a spatially varying F (see there).
         # A residual scale S (surface="flatten") comes with a diagonal preconditioner that brings
         # the Hessian back to the plain blur's (ops.lipschitz_factor = 1; NumpyOps.precond).
-        self.L = (lipschitz_estimate(ops.psfs, ops.metric, colour=colour) * 1.05
+        self.L = (lipschitz_estimate(ops.psfs, ops.metric, colour=colour) * L_MARGIN
                   * ops.lipschitz_factor)
         # The spatial preconditioner: the gradient G is M_F Fᵀ q wherever FISTA forms one
         # (_gradient), so that G_prev and the momentum are preconditioned alike.
