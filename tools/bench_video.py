@@ -6,9 +6,11 @@ Sections (``--sections``, comma-separated; default ``cost``):
 ``cost``   ``Compensator.compensate()`` at the projector size (default 800x600) with the
            virtual cubicle's oracle kernels, *before* and *after* in this one run: the
            ``--baseline`` revision (default :data:`BASELINE_REV`, the code before issue 10's cost
-           work; extracted with ``git archive`` beside the results) and this tree, each in its
-           own process, frames interleaved round by round. Two kinds of frames: ``still`` (the
-           same photograph again: a paused video, a slide) and ``moving`` (a pan of
+           work; extracted with ``git archive`` beside the results) and this tree, one process
+           per tree, kind of frame and budget (one Compensator each, as in use), frames
+           interleaved round by round. ``--baseline-cl-options`` adds the baseline built with
+           extra OpenCL options (``before+opts``): the share of a build flag alone. Two kinds
+           of frames: ``still`` (the same photograph again: a paused video, a slide) and ``moving`` (a pan of
            :data:`PAN_PX` input px per frame: every frame new). Per tree and kind: the time per
            iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (as issue 10 measured
            them; a moving frame's t(0) includes the first iteration's gradient, computed with
@@ -58,9 +60,17 @@ BUDGETS = (0, 8)
 #: next step of a pan) to a Compensator kept for (KIND, N) and answers the seconds of
 #: ``compensate(frame, iterations=N, warm_start=True)`` as one JSON line.
 WORKER = r"""
-import json, sys, time
+import json, os, sys, time
 tree, w, h, pan = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 sys.path.insert(0, tree)
+extra = os.environ.get("RTDEFOCUS_BENCH_CL_OPTIONS", "").split()
+if extra:   # --baseline-cl-options: that tree's programs built with these options too
+    import pyopencl as cl
+    _build = cl.Program.build
+    def _build_with_extra(self, options=None, devices=None, cache_dir=None):
+        opts = options.split() if isinstance(options, str) else list(options or [])
+        return _build(self, opts + extra, devices, cache_dir)
+    cl.Program.build = _build_with_extra
 import cv2, numpy as np
 import rtdefocus
 from rtdefocus import sim
@@ -98,12 +108,14 @@ class _Worker:
     frames: an idle OpenCL runtime's worker threads would otherwise take CPU from the other
     tree's frames (measured: the per-iteration time doubled with both processes running)."""
 
-    def __init__(self, tree: Path, size):
+    def __init__(self, tree: Path, size, cl_options: str = ""):
+        import os
         import subprocess
 
+        env = {**os.environ, "RTDEFOCUS_BENCH_CL_OPTIONS": cl_options}
         self.proc = subprocess.Popen(
             [sys.executable, "-c", WORKER, str(tree), str(size[0]), str(size[1]), str(PAN_PX)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=str(tree))
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=str(tree), env=env)
         ready = json.loads(self.proc.stdout.readline() or "{}")
         if "ready" not in ready:
             raise RuntimeError(f"the benchmark worker on {tree} did not start")
@@ -150,19 +162,27 @@ def section_cost(args, out: dict) -> None:
     """Before (``--baseline`` revision) and after (this tree), each in its own process, frames
     interleaved round by round so that a shared machine's load falls on both alike."""
     trees = {"after": REPO}
+    options = {}
     if args.baseline:
         base = _baseline_tree(args.baseline, args.out)
         if base is not None:
             trees = {"before": base, **trees}
-    workers = {v: _Worker(t, args.size) for v, t in trees.items()}
-    print("  trees: " + ", ".join(f"{v} {w.module}" for v, w in workers.items()))
-    keys = [(v, k, n) for v in workers for k in KINDS for n in BUDGETS]
+            if args.baseline_cl_options:
+                # the baseline again with only these build options changed: what they alone give
+                trees = {"before": base, "before+opts": base, "after": REPO}
+                options["before+opts"] = args.baseline_cl_options
+    keys = [(v, k, n) for v in trees for k in KINDS for n in BUDGETS]
+    # One process per (tree, kind, budget), each with its one Compensator, as in use: four
+    # Compensators in one process made a moving frame's start ~1.5x slower than a single one's
+    # (their buffers compete for the caches), more so for the tree with more state.
+    workers = {key: _Worker(trees[key[0]], args.size, options.get(key[0], "")) for key in keys}
+    print("  trees: " + ", ".join(f"{v} {workers[v, KINDS[0], BUDGETS[0]].module}" for v in trees))
     times = {key: [] for key in keys}
     cpu = {key: [] for key in keys}
     stages = {key: {} for key in keys}
     for rnd in range(args.warmup + args.repeats):
         for v, k, n in keys:
-            r = workers[v].frame(k, n)
+            r = workers[v, k, n].frame(k, n)
             if rnd >= args.warmup:
                 times[v, k, n].append(r["s"])
                 cpu[v, k, n].append(r["cpu_s"])
@@ -172,7 +192,7 @@ def section_cost(args, out: dict) -> None:
         w.close()
     rows = []
     lo, hi = BUDGETS
-    for v in workers:
+    for v in trees:
         for k in KINDS:
             t_lo = statistics.median(times[v, k, lo])
             t_hi = statistics.median(times[v, k, hi])
@@ -194,7 +214,7 @@ def section_cost(args, out: dict) -> None:
             row["per_iteration_cpu_ms"] = 1e3 * (c_hi - c_lo) / (hi - lo)
             row["fixed_cpu_ms"] = 1e3 * c_lo - lo * row["per_iteration_cpu_ms"]
             rows.append(row)
-            print(f"  {v:6s} {k:6s} fixed {row['fixed_ms']:7.1f} ms  per iteration "
+            print(f"  {v:11s} {k:6s} fixed {row['fixed_ms']:7.1f} ms  per iteration "
                   f"{row['per_iteration_ms']:6.1f} ms  ({lo} it: {row['frame_ms'][lo]:.1f} ms: "
                   + ", ".join(f"{st} {x:.1f}" for st, x in row["stages_ms"][lo].items()) + ")",
                   flush=True)
@@ -244,6 +264,9 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", default=BASELINE_REV,
                     help=f"cost: the revision measured as 'before' (default {BASELINE_REV}, "
                          "before issue 10's cost work; '' for none)")
+    ap.add_argument("--baseline-cl-options", default="",
+                    help="cost: also run the baseline with these OpenCL build options added "
+                         "(e.g. '-cl-denorms-are-zero'), as the variant 'before+opts'")
     ap.add_argument("--no-plot", action="store_true", help="eval: no video.png")
     ap.add_argument("--out", type=Path, default=REPO / "bench_results")
     args = ap.parse_args(argv)
