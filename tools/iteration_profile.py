@@ -5,7 +5,7 @@ same iterations without the syncs (``Solver.run``), on the cubicle's oracle kern
 
 Example (about 20 s at 800x600 on 2 PoCL cores)::
 
-    .venv/bin/python tools/iteration_profile.py --size 800x600 --rounds 6
+    .venv/bin/python tools/iteration_profile.py --size 800x600 --rounds 6 [--moving]
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", default="800x600", help="projector WxH")
     ap.add_argument("--rounds", type=int, default=6, help="runs of 8 iterations each")
+    ap.add_argument("--moving", action="store_true",
+                    help="also time a moving frame's fixed part step by step")
     ap.add_argument("--precondition", default="colour+spatial",
                     choices=("colour+spatial", "colour", "none"))
     a = ap.parse_args(argv)
@@ -82,7 +84,53 @@ def main(argv=None) -> int:
     print(f"  {'sum of the medians':24s} {total:6.2f} ms")
     print(f"  Solver.run(8) / 8: median {1e3 * float(np.median(runs)):.2f} ms, "
           f"min {1e3 * min(runs):.2f} ms ({a.rounds} runs, no syncs)")
+    if a.moving:
+        moving_start(comp, a.rounds)
     return 0
+
+
+def moving_start(comp, rounds: int) -> None:
+    """A moving frame's fixed part, step by step as ``Compensator._start_solve`` takes it (each
+    step synchronised, so the motion estimate does not overlap the cold start's blur here), on
+    a pan of 6 input px per frame."""
+    import cv2
+
+    s, ops = comp._solver, comp._solver.ops
+    photo = photographs()["astronaut"]
+    times = collections.defaultdict(list)
+
+    def timed(name, fn):
+        ops.finish()
+        t0 = time.perf_counter()
+        out = fn()
+        ops.finish()
+        times[name].append(time.perf_counter() - t0)
+        return out
+
+    def pan(i):
+        m = np.float32([[1, 0, -6 * i], [0, 1, 0]])
+        return cv2.warpAffine(photo, m, photo.shape[1::-1], borderMode=cv2.BORDER_REFLECT)
+
+    comp.reset()
+    prev = comp.warp(pan(0))
+    comp.compensate(pan(0), iterations=2)
+    for i in range(1, 3 + 3 * rounds):
+        img = pan(i)
+        warped = timed("GL warp", lambda img=img: comp.warp(img))
+        motion = timed("motion estimate (host)", lambda w=warped, p=prev: comp._motion.estimate(p, w))
+        s.begin_frame()
+        timed("decode", lambda w=warped: ops.decode(w, comp._lut_inc, 0.0, 1.0, s.target))
+        s.target_changed()
+        d_cold = timed("cold start's distance", s.cold_distance)
+        timed("motion upload", lambda m=motion: ops.set_motion(m.map_xy, m.valid))
+        timed("warm start: carries, distance, first gradient",
+              lambda d=d_cold: s.start_from_motion(d))
+        timed("1 iteration", lambda: s.run(1))
+        timed("encode + read-back", lambda: ops.encode(s.P, comp._lut_inc))
+        comp._prev_warped, prev = warped, warped
+    print("a moving frame's start, each step synchronised (medians):")
+    for name, v in times.items():
+        print(f"  {name:46s} {1e3 * float(np.median(v[3:])):6.2f} ms")
 
 
 if __name__ == "__main__":
