@@ -9,7 +9,13 @@ frame after frame, in order, in several *modes*:
 ``offline``    :data:`OFFLINE_ITERATIONS` cold iterations per frame (file rendering, the ceiling);
 ``fps-N``      warm start, iterations per frame chosen from the measured time of the previous
                frames to hold N frames per second, as the player's
-               :class:`~rtdefocus.stream.controls.IterationBudget` does (at least 1 iteration).
+               :class:`~rtdefocus.stream.controls.IterationBudget` does (at least 1 iteration);
+               every frame is compensated, however long it takes;
+``window-N``   what the audience of the projector window sees: the clip played live at N fps
+               through the real player (:class:`~rtdefocus.stream.Player`, realtime sink), which
+               drops frames it cannot keep up with and shows some with geometry only to keep up
+               (its ``catch_up``); a dropped frame's time shows the last frame shown, scored
+               against the frame that should be there.
 
 Every frame's camera view (``procam.capture(frame)``) is scored against the sharp capture of
 the same warp (``procam.capture(comp.warp(image), sharp=True)``) inside the display rectangle,
@@ -171,9 +177,48 @@ class _Memo:
         return self.store[k]
 
 
+def play_window(calib, backend: str, clip, fps: float):
+    """The clip played live at ``fps`` through the real player into a realtime sink.
+
+    Returns
+    -------
+    shown : dict
+        Per frame index shown: the projector frame and its solver iterations (0: shown with
+        geometry only to keep up).
+    stats : rtdefocus.stream.LoopStats
+    """
+    from .stream import ArraySource, Player
+    from .stream.sinks import Sink
+
+    comp = Compensator(calib, backend=backend)
+    comp.compensate(clip[0][1], iterations=1, warm_start=False)   # builds, first-use costs
+    comp.reset()
+
+    class WindowSink(Sink):
+        kind, realtime = "window (recorded)", True
+
+        def __init__(self):
+            self.shown: dict[int, tuple[np.ndarray, int]] = {}
+            self.player = None
+            self._geometry = 0
+
+        def write(self, frame: np.ndarray, index: int) -> None:
+            g = self.player.stats.geometry_frames
+            its = 0 if g > self._geometry else int(comp.last_info.get("iterations", 0))
+            self._geometry = g
+            self.shown[index] = (frame.copy(), its)
+
+    sink = WindowSink()
+    player = Player(comp, ArraySource([image for _, image in clip], fps=fps, live=True), sink)
+    sink.player = player
+    stats = player.run()
+    return sink.shown, stats
+
+
 def mode_names(budgets, fps_list, offline: int) -> list[str]:
     names = [f"warm-{k}" for k in budgets] + [f"cold-{k}" for k in budgets]
     names += [f"fps-{f:g}" for f in fps_list]
+    names += [f"window-{f:g}" for f in fps_list]
     if offline:
         names.append("offline")
     return names
@@ -278,6 +323,16 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
         c.compensate(clip[0][1], iterations=1, warm_start=False)
         c.reset()
 
+    # The window first, on an idle machine: the other modes' work would be its load otherwise.
+    windows, window_stats = {}, {}
+    for f in fps:
+        say(f"  the player at {f:g} fps, live (the window's view)")
+        m = f"window-{f:g}"
+        windows[m], st = play_window(calib, backend, clip, f)
+        window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
+                           "geometry_only": st.geometry_frames, "fps": st.fps}
+    on_screen = dict.fromkeys(windows)        # what each window shows at the current frame
+
     records = []
     for i, (seg, image) in enumerate(clip):
         warped = geometry.warp(image)
@@ -298,6 +353,12 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                 frame = c.compensate(image, iterations=iters, warm_start=True)
                 secs = time.perf_counter() - t0
                 b.update(secs, c.last_info["seconds"].get("solve", 0.0), iters)
+            elif m.startswith("window-"):
+                if i in windows[m]:
+                    on_screen[m] = windows[m][i]
+                # (nothing shown yet: the projector still shows the geometry of frame 0)
+                frame, iters = on_screen[m] if on_screen[m] is not None else (warped, 0)
+                secs = float("nan")
             else:
                 iters = offline if m == "offline" else int(m.split("-")[1])
                 frame, secs = cold_solve(image, iters)
@@ -320,6 +381,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                      "segments": [s.__dict__ for s in segments], "clip_fps": CLIP_FPS},
         "machine": machine_description(),
         "modes": modes, "segments": [s.name for s in segments], "summary": summary,
+        "window": window_stats,
         "frames": records,
     }
     result["seconds"] = time.perf_counter() - t_start

@@ -281,6 +281,59 @@ def test_realtime_budget_answers_a_slower_device(comp):
     assert 2 <= np.median(its) <= 4, f"the budget should shrink to what fits: {its}"
 
 
+def test_a_slow_device_keeps_up_with_geometry_only_frames(comp):
+    """A frame that costs more than a period (50 ms at 30 fps): without catch-up every few
+    frames one is dropped and a late one stays on the screen; with it (the default) the loop
+    shows some frames with geometry only instead and drops (almost) none."""
+    fps, n = 30.0, 40
+    runs = {}
+    for catch_up in (False, True):
+        comp.reset()
+        paced = PacedCompensator(comp, overhead=0.050, per_iteration=0.004)
+        sink = RecordingSink(realtime=True)
+        player = Player(paced, ArraySource(synthetic_frames(n), fps=fps, live=True), sink,
+                        catch_up=catch_up)
+        runs[catch_up] = (player.run(), sink)
+    (late, _), (kept, sink) = runs[False], runs[True]
+    assert late.dropped >= 5 and late.geometry_frames == 0
+    assert kept.geometry_frames >= 5 and kept.dropped <= 2, kept.summary()
+    assert kept.frames_out + kept.dropped == n
+    # a frame shown with geometry only is exactly the warp of its input
+    frames = synthetic_frames(n)
+    warps = [i for i, f in zip(sink.indices, sink.frames, strict=True)
+             if np.array_equal(f, comp.warp(frames[i]))]
+    assert len(warps) >= kept.geometry_frames
+
+
+def test_catch_up_leaves_a_still_picture_and_a_fast_device_alone(comp):
+    """A picture that does not change is compensated however slow the device (dropping a copy
+    of it shows nothing else), and a device that fits the period never falls back."""
+    still = [synthetic_frames(1)[0]] * 30
+    comp.reset()
+    slow = PacedCompensator(comp, overhead=0.050, per_iteration=0.004)
+    stats = play(slow, ArraySource(still, fps=30.0, live=True), RecordingSink(realtime=True))
+    assert stats.geometry_frames == 0 and stats.frames_out > 0
+    comp.reset()
+    fast = PacedCompensator(comp, overhead=0.004, per_iteration=0.002)
+    stats = play(fast, ArraySource(synthetic_frames(30), fps=30.0, live=True),
+                 RecordingSink(realtime=True))
+    assert stats.geometry_frames == 0 and stats.dropped <= 1
+
+
+def test_budget_keeps_a_repeated_frames_budget_apart():
+    """A still picture's cheap frames do not raise the budget of the next new frame."""
+    b = IterationBudget(50.0, maximum=40)                # 20 ms per frame
+    for _ in range(10):                                  # new frames: 12 ms of rest, 2 per it
+        n = b.iterations_for(False)
+        b.update(0.012 + n * 0.002, n * 0.002, n, repeat=False)
+    for _ in range(30):                                  # then a still: 1 ms of rest
+        n = b.iterations_for(True)
+        b.update(0.001 + n * 0.002, n * 0.002, n, repeat=True)
+    assert b.iterations_for(True) == 9                   # (20 - 1) / 2
+    assert b.iterations_for(False) == b.iterations == 4  # (20 - 12) / 2, as before the still
+    assert b.frame_seconds(1, repeat=False) == pytest.approx(0.014, rel=0.05)
+
+
 # --------------------------------------------------------------------------- memory
 def test_500_frames_no_memory_growth(comp):
     """No growth as a ratio within the run (tools/bench_stream.py reports the figures)."""

@@ -7,6 +7,7 @@ Keys (window): space pause, ←/→ previous/next slide, ``c`` compensation on/o
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 from dataclasses import dataclass
@@ -78,6 +79,10 @@ class KeyDispatcher:
         return action
 
 
+#: Frames whose rests :meth:`IterationBudget.frame_seconds` takes the worst of (``worst=True``).
+RECENT = 3
+
+
 class IterationBudget:
     """Solver iterations per frame that hold a target frame period.
 
@@ -86,6 +91,11 @@ class IterationBudget:
     number of iterations that fits in what is left of the period, clamped to
     ``[minimum, maximum]`` and allowed to grow by at most half per frame (a slow frame is
     answered at once, a fast one cautiously).
+
+    A *repeated* frame (the same picture again: a paused video, a slide) skips the warp and the
+    motion estimate, so its rest costs a fraction of a new frame's: the two kinds keep their own
+    averages and budgets (``repeat=``), and a still picture's larger budget does not carry over
+    to the first new frame after it.
     """
 
     def __init__(self, fps: float, *, initial: int = 2, minimum: int = 1, maximum: int = 20,
@@ -96,25 +106,66 @@ class IterationBudget:
             raise InputError(f"need 1 <= minimum <= maximum iterations; got {minimum}, {maximum}")
         self.period = 1.0 / fps
         self.minimum, self.maximum = int(minimum), int(maximum)
-        self.iterations = int(min(max(initial, minimum), maximum))
         self.alpha = smoothing
         self.per_iteration: float | None = None
-        self.overhead: float | None = None
+        start = int(min(max(initial, minimum), maximum))
+        self._overhead: dict[bool, float | None] = {False: None, True: None}
+        self._recent: dict[bool, collections.deque] = {k: collections.deque(maxlen=RECENT)
+                                                       for k in (False, True)}
+        self._iterations = {False: start, True: start}
+
+    @property
+    def iterations(self) -> int:
+        """The budget of the next new frame."""
+        return self._iterations[False]
+
+    @property
+    def overhead(self) -> float | None:
+        """The averaged rest (all but the solve) of a new frame, seconds."""
+        return self._overhead[False]
+
+    def iterations_for(self, repeat: bool = False) -> int:
+        """The budget of the next frame of that kind."""
+        return self._iterations[bool(repeat)]
+
+    def frame_seconds(self, iterations: int | None = None, repeat: bool = False,
+                      worst: bool = False) -> float | None:
+        """Expected seconds of a compensated frame of that kind at ``iterations`` (default its
+        budget); ``worst``: from the slowest of the last few frames' rests instead of their
+        average (a deadline that must not be missed). None before the first measured frame."""
+        kind = bool(repeat) if self._overhead[bool(repeat)] is not None else not repeat
+        rest = self._overhead[kind]
+        if self.per_iteration is None or rest is None:
+            return None
+        if worst:
+            rest = max(rest, *self._recent[kind])
+        n = self.iterations_for(repeat) if iterations is None else int(iterations)
+        return rest + n * self.per_iteration
 
     def _ema(self, old: float | None, new: float) -> float:
         return new if old is None else (1 - self.alpha) * old + self.alpha * new
 
-    def update(self, frame_seconds: float, solve_seconds: float, iterations: int) -> int:
-        """Record one frame; return the budget for the next one."""
+    def update(self, frame_seconds: float, solve_seconds: float, iterations: int,
+               repeat: bool = False) -> int:
+        """Record one frame (``repeat``: the same picture as the frame before); return the
+        budget for the next frame of that kind."""
+        repeat = bool(repeat)
         if iterations > 0:
             self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
-        self.overhead = self._ema(self.overhead, max(0.0, frame_seconds - solve_seconds))
+        rest = max(0.0, frame_seconds - solve_seconds)
+        self._overhead[repeat] = self._ema(self._overhead[repeat], rest)
+        self._recent[repeat].append(rest)
         if self.per_iteration:
-            fit = (self.period - self.overhead) / self.per_iteration
-            grow = max(self.iterations + 1, math.ceil(self.iterations * 1.5))
-            n = min(int(fit) if math.isfinite(fit) else self.maximum, grow)
-            self.iterations = int(min(max(n, self.minimum), self.maximum))
-        return self.iterations
+            for kind in (False, True):
+                rest = self._overhead[kind]
+                if rest is None:
+                    rest = self._overhead[not kind]
+                fit = (self.period - rest) / self.per_iteration
+                old = self._iterations[kind]
+                grow = max(old + 1, math.ceil(old * 1.5))
+                n = min(int(fit) if math.isfinite(fit) else self.maximum, grow)
+                self._iterations[kind] = int(min(max(n, self.minimum), self.maximum))
+        return self._iterations[repeat]
 
 
 def draw_overlay(frame: np.ndarray, lines: list[str]) -> np.ndarray:

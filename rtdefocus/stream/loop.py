@@ -32,7 +32,12 @@ oldest queued frame and counts it in ``stats.dropped`` before adding the new one
 solver always gets the newest frame, frames keep their capture order (the queue is FIFO and
 only the decoder removes from its head when dropping), and the source never waits. The
 per-frame iteration budget adapts to hold the target frame rate
-(:class:`~rtdefocus.stream.controls.IterationBudget`).
+(:class:`~rtdefocus.stream.controls.IterationBudget`). Where even its minimum does not fit (a
+slow device on moving content), a frame whose compensation would end after the frame after
+next has arrived is shown with geometry only (``catch_up``): a warp costs a fraction of a
+solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
+screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
+``stats.geometry_frames`` counts them).
 
 *File rendering* (a file or memory source into a file sink): the decoder blocks on a full
 queue, so every frame is compensated and written, in order, with the full iteration budget.
@@ -66,6 +71,14 @@ from .threads import SinkWriter
 log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, "int | None"], None]
+
+#: Catch-up: a frame is shown with geometry only when its compensation is expected to end later
+#: than this share of two periods after it was read (the frame after next arrives at two).
+CATCH_UP_SHARE = 0.95
+#: After this many frames in a row shown with geometry only, the next is compensated anyway (at
+#: the minimum budget): geometry frames measure nothing, and the device may have become faster
+#: (the first frames' costs, another program's load, a simpler picture).
+CATCH_UP_PROBE = 8
 
 
 class _End:
@@ -125,6 +138,10 @@ class Player(SlidesMixin):
         Decode on a thread of its own and, for a file sink, encode/write on another (default);
         False runs every stage in turn on the calling thread (no pacing, no dropping: for
         comparisons and tests).
+    catch_up : bool
+        Realtime playback with the adaptive budget: show a frame with geometry only when
+        compensating it would make the loop drop the next one (default True; see the module's
+        drop policy).
 
     Notes
     -----
@@ -137,7 +154,7 @@ class Player(SlidesMixin):
                  queue_size: int | None = None, cache=None, progress: ProgressFn | None = None,
                  overlay: bool = False, max_iterations: int | None = None, refine_tol: float = 2e-4,
                  refine_max: int | None = None, ahead: int = 2, keymap: dict[str, str] | None = None,
-                 threads: bool = True):
+                 threads: bool = True, catch_up: bool = True):
         if iterations is not None and iterations < 0:
             raise InputError(f"iterations must be >= 0; got {iterations}")
         if fps is not None and fps <= 0:
@@ -167,6 +184,10 @@ class Player(SlidesMixin):
         self._last_index = -1
         self._work: _Work | None = None
         self.threads = bool(threads)
+        self.catch_up = bool(catch_up)
+        self._last_image: np.ndarray | None = None   # the last input compensated (budget kinds)
+        self._prev_input: np.ndarray | None = None   # the last input seen (catch-up)
+        self._geometry_run = 0                       # frames in a row shown with geometry only
         self._writer: SinkWriter | None = None
 
     def settings(self) -> dict:
@@ -243,12 +264,19 @@ class Player(SlidesMixin):
             return out
         return self._compensate(image, iterations, warm_start)
 
-    def _frame_iterations(self) -> int | None:
+    def _frame_iterations(self, repeat: bool = False) -> int | None:
         if self.iterations is not None:
             return self.iterations
         if self.budget is not None:
-            return self.budget.iterations
+            return self.budget.iterations_for(repeat)
         return None  # the Compensator's own budget
+
+    def _is_repeat(self, image: np.ndarray) -> bool:
+        """The adaptive budget's kind of frame: the same picture as the last one compensated
+        (a paused video, a still) skips the warp and the motion estimate."""
+        prev = self._last_image
+        return (self.budget is not None and prev is not None and prev.shape == image.shape
+                and np.array_equal(prev, image))
 
     def _present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
         st = self.stats
@@ -263,12 +291,14 @@ class Player(SlidesMixin):
             st.add("latency", t1 - t_read)
         st.frame_out()
 
-    def _direct_geometry(self) -> bool:
-        """Geometry-only mode into a window of the projector's size, no overlay: the warp shader
-        can render straight into the window (no read-back, no second upload)."""
+    def _direct_geometry(self, catching_up: bool = False) -> bool:
+        """Geometry only (the mode, or a frame shown so to keep up) into a window of the
+        projector's size, no overlay: the warp shader can render straight into the window (no
+        read-back, no second upload)."""
         calib = getattr(self.comp, "calib", None)
-        return (self.controls.mode == "geometry" and not self.controls.overlay and calib is not None
-                and getattr(self.sink, "can_warp", None) is not None and self.sink.can_warp(calib))
+        return ((catching_up or self.controls.mode == "geometry") and not self.controls.overlay
+                and calib is not None and getattr(self.sink, "can_warp", None) is not None
+                and self.sink.can_warp(calib))
 
     def _present_warped(self, image: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
         self.sink.write_warped(image, index, self.comp.calib)
@@ -280,14 +310,52 @@ class Player(SlidesMixin):
             st.add("latency", t1 - t_read)
         st.frame_out()
 
-    def _update_budget(self, t_start: float) -> None:
+    def _catch_up_iterations(self, frame: Frame, iterations: int | None,
+                             repeat: bool) -> tuple[bool, int | None]:
+        """Realtime, full mode, adaptive budget: ``(False, n)`` with the iterations n that let
+        ``frame`` end before the frame after next arrives (one period after the next one), or
+        ``(True, None)`` when not even the minimum does (the next frame would then be dropped
+        and this one shown late: geometry only keeps up instead). Otherwise ``(False,
+        iterations)``. A picture that did not
+        change since the frame before is compensated whatever the time: dropping a copy of it
+        shows nothing else, and once compensated its repeats are cheap."""
+        b = self.budget
+        prev, self._prev_input = self._prev_input, frame.image
+        if (b is None or iterations is None or not self.catch_up or not self.live
+                or self.controls.mode != "full"):
+            return False, iterations
+        if prev is not None and prev.shape == frame.image.shape and np.array_equal(prev, frame.image):
+            return False, iterations
+        rest = b.frame_seconds(0, repeat, worst=True)
+        if rest is None:
+            return False, iterations
+        if self._geometry_run >= CATCH_UP_PROBE:      # a probe: measure the device again
+            return False, b.minimum
+        left = CATCH_UP_SHARE * 2.0 * b.period - (time.perf_counter() - frame.t_read) - rest
+        fit = int(left / b.per_iteration) if b.per_iteration > 0 else iterations
+        if fit < b.minimum:
+            return True, None
+        return False, min(iterations, fit)
+
+    def _show_geometry(self, frame: Frame, t_start: float) -> None:
+        """``frame`` with geometry only, to keep up (see :meth:`_catch_up_iterations`)."""
+        self.stats.geometry_frames += 1
+        if self._direct_geometry(catching_up=True):
+            self._present_warped(frame.image, frame.index, frame.t_read, t_start)
+            return
+        t0 = time.perf_counter()
+        out = self.comp.warp(frame.image)
+        self.stats.add("warp", time.perf_counter() - t0)
+        self._present(out, frame.index, frame.t_read, t_start)
+
+    def _update_budget(self, t_start: float, repeat: bool = False) -> None:
         if self.budget is None or self.controls.mode != "full":
             return
         info = getattr(self.comp, "last_info", None) or {}
         sec = info.get("seconds") or {}
         its = int(info.get("iterations", 0) or 0)
         solve = float(sec.get("solve", 0.0)) if "solve" in sec else self.stats.stages["compensate"].last
-        self.budget.update(time.perf_counter() - t_start, solve, its)
+        self.budget.update(time.perf_counter() - t_start, solve, its, repeat=repeat)
 
     def _idle(self, seconds: float = 0.01) -> None:
         window = getattr(self.sink, "window", None)
@@ -431,9 +499,18 @@ class Player(SlidesMixin):
             if self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
             else:
-                out = self._render(frame.image, iterations=self._frame_iterations())
-                self._present(out, frame.index, frame.t_read, t0)
-            self._update_budget(t0)
+                repeat = self._is_repeat(frame.image)
+                geometry, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
+                                                            repeat)
+                self._geometry_run = self._geometry_run + 1 if geometry else 0
+                if geometry:
+                    self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
+                else:
+                    out = self._render(frame.image, iterations=iters)
+                    self._present(out, frame.index, frame.t_read, t0)
+                    self._update_budget(t0, repeat)
+                    if self.budget is not None:
+                        self._last_image = frame.image
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)

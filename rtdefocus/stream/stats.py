@@ -73,6 +73,8 @@ class LoopStats:
         Frames written to the sink (presented, encoded, saved).
     dropped : int
         Frames decoded but never shown because a newer one arrived first (live sources only).
+    geometry_frames : int
+        Frames shown with geometry only to keep up (realtime playback, ``Player(catch_up=True)``).
     stages : dict[str, Series]
         Seconds per frame of each stage: ``read`` (source read + decode, decoder thread),
         ``compensate`` (the whole Compensator call), its own stages (``warp``, ``decode``,
@@ -100,6 +102,7 @@ class LoopStats:
         self.frames_in = 0
         self.frames_out = 0
         self.dropped = 0
+        self.geometry_frames = 0
         self.stages: dict[str, Series] = {}
         self.iterations = Series()
         self.residual: float | None = None
@@ -155,7 +158,7 @@ class LoopStats:
         it = f"iterations {int(self.iterations.last)}" if self.iterations.count else "iterations -"
         res = f"residual {self.residual:.4g}" if self.residual is not None else "residual -"
         lines = [f"{self.fps_now:5.1f} fps  in {self.frames_in}  out {self.frames_out}  "
-                 f"dropped {self.dropped}",
+                 f"dropped {self.dropped}  geometry only {self.geometry_frames}",
                  f"ms: {ms}",
                  f"{it}  {res}  mode {mode}{'  PAUSED' if paused else ''}"]
         if self.clipped.count:
@@ -168,6 +171,7 @@ class LoopStats:
         return {
             "source": self.source, "sink": self.sink,
             "frames_in": self.frames_in, "frames_out": self.frames_out, "dropped": self.dropped,
+            "geometry_frames": self.geometry_frames,
             "seconds": round(self.seconds, 4), "fps": round(self.fps, 3),
             "stages_ms": {k: {m: round(v, 3) if isinstance(v, float) else v
                               for m, v in s.as_dict(1e3).items()} for k, s in self.stages.items()},
@@ -184,6 +188,9 @@ class LoopStats:
         """A printable multi-line summary (the CLI prints it at the end of every run)."""
         lines = [f"{self.frames_out} frames out, {self.frames_in} in, {self.dropped} dropped in "
                  f"{self.seconds:.2f} s: {self.fps:.2f} fps end to end"]
+        if self.geometry_frames:
+            lines.append(f"  {self.geometry_frames} frames shown with geometry only to keep up "
+                         "(compensating them would have dropped the next)")
         if self.stages:
             width = max(len(k) for k in self.stages)
             lines.append(f"  {'stage':<{width}}  {'mean ms':>9}  {'p95 ms':>9}  {'frames':>7}")
