@@ -15,7 +15,9 @@ frame after frame, in order, in several *modes*:
                through the real player (:class:`~rtdefocus.stream.Player`, realtime sink), which
                drops frames it cannot keep up with and shows some with geometry only to keep up
                (its ``catch_up``); a dropped frame's time shows the last frame shown, scored
-               against the frame that should be there.
+               against the frame that should be there;
+``geowindow-N`` the same window with compensation off (the player's geometry mode): what the
+               audience would see instead, drops included (0 dB where it keeps up).
 
 Every frame's camera view (``procam.capture(frame)``) is scored against the sharp capture of
 the same warp (``procam.capture(comp.warp(image), sharp=True)``) inside the display rectangle,
@@ -177,8 +179,9 @@ class _Memo:
         return self.store[k]
 
 
-def play_window(calib, backend: str, clip, fps: float):
-    """The clip played live at ``fps`` through the real player into a realtime sink.
+def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = False):
+    """The clip played live at ``fps`` through the real player into a realtime sink
+    (``geometry_only``: in the player's geometry mode, compensation off).
 
     Returns
     -------
@@ -204,13 +207,16 @@ def play_window(calib, backend: str, clip, fps: float):
 
         def write(self, frame: np.ndarray, index: int) -> None:
             g = self.player.stats.geometry_frames
-            its = 0 if g > self._geometry else int(comp.last_info.get("iterations", 0))
+            its = (0 if g > self._geometry or player.controls.mode != "full"
+                   else int(comp.last_info.get("iterations", 0)))
             self._geometry = g
             self.shown[index] = (frame.copy(), its)
 
     sink = WindowSink()
     player = Player(comp, ArraySource([image for _, image in clip], fps=fps, live=True), sink)
     sink.player = player
+    if geometry_only:
+        player.controls.mode = "geometry"
     stats = player.run()
     return sink.shown, stats
 
@@ -218,7 +224,7 @@ def play_window(calib, backend: str, clip, fps: float):
 def mode_names(budgets, fps_list, offline: int) -> list[str]:
     names = [f"warm-{k}" for k in budgets] + [f"cold-{k}" for k in budgets]
     names += [f"fps-{f:g}" for f in fps_list]
-    names += [f"window-{f:g}" for f in fps_list]
+    names += [f"{w}-{f:g}" for f in fps_list for w in ("window", "geowindow")]
     if offline:
         names.append("offline")
     return names
@@ -326,11 +332,13 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
     # The window first, on an idle machine: the other modes' work would be its load otherwise.
     windows, window_stats = {}, {}
     for f in fps:
-        say(f"  the player at {f:g} fps, live (the window's view)")
-        m = f"window-{f:g}"
-        windows[m], st = play_window(calib, backend, clip, f)
-        window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
-                           "geometry_only": st.geometry_frames, "fps": st.fps}
+        for kind in ("window", "geowindow"):
+            say(f"  the player at {f:g} fps, live (the window's view"
+                + (", geometry only)" if kind == "geowindow" else ")"))
+            m = f"{kind}-{f:g}"
+            windows[m], st = play_window(calib, backend, clip, f, geometry_only=kind == "geowindow")
+            window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
+                               "geometry_only": st.geometry_frames, "fps": st.fps}
     on_screen = dict.fromkeys(windows)        # what each window shows at the current frame
 
     records = []
@@ -353,7 +361,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                 frame = c.compensate(image, iterations=iters, warm_start=True)
                 secs = time.perf_counter() - t0
                 b.update(secs, c.last_info["seconds"].get("solve", 0.0), iters)
-            elif m.startswith("window-"):
+            elif m.startswith(("window-", "geowindow-")):
                 if i in windows[m]:
                     on_screen[m] = windows[m][i]
                 # (nothing shown yet: the projector still shows the geometry of frame 0)

@@ -23,6 +23,8 @@ def mode_label(mode: str) -> str:
         return f"{n} fps wall-clock budget (warm)"
     if kind == "window":
         return f"the window at {n} fps (the player, live)"
+    if kind == "geowindow":
+        return f"the window at {n} fps, geometry only"
     return MODE_LABELS.get(mode, mode)
 
 
@@ -80,9 +82,10 @@ def video_markdown(result: dict) -> str:
         lines.append(f"| {mode_label(mode)} | " + " | ".join(cells) + f" | {still} | {cut} | "
                      f"{_f(r['iterations_median'], 'g')} | {_f(r['ms_median'], '.0f')} |")
     for mode, w in (result.get("window") or {}).items():
-        lines += ["", f"{mode_label(mode)}: {w['shown']} frames shown ({w['geometry_only']} with "
-                  f"geometry only to keep up), {w['dropped']} dropped, {w['fps']:.1f} fps end "
-                  "to end."]
+        caught = (f" ({w['geometry_only']} with geometry only to keep up)"
+                  if mode.startswith("window") else "")
+        lines += ["", f"{mode_label(mode)}: {w['shown']} frames shown{caught}, {w['dropped']} "
+                  f"dropped, {w['fps']:.1f} fps end to end."]
     lines += ["", f"Run time {result['seconds']:.0f} s.", ""]
     return "\n".join(lines)
 
@@ -106,7 +109,7 @@ def plot_video(result: dict, path) -> Path:
     frames = result["frames"]
     ax = fig.subplots()
     x = np.arange(len(frames))
-    styles = {"warm": "-", "cold": ":", "fps": "--", "window": "-."}
+    styles = {"warm": "-", "cold": ":", "fps": "--", "window": "-.", "geowindow": "-."}
     for mode in result["modes"]:
         y = [f["gain"][mode] for f in frames]
         kind = mode.split("-")[0]

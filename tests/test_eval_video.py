@@ -65,7 +65,8 @@ def test_eval_video_quick(tmp_path):
     result = json.loads((tmp_path / "video.json").read_text())
     segments = [s.name for s in QUICK_SEGMENTS]
     assert result["segments"] == segments
-    assert result["modes"] == ["warm-1", "cold-1", "fps-30", "window-30", "offline"]
+    assert result["modes"] == ["warm-1", "cold-1", "fps-30", "window-30", "geowindow-30",
+                               "offline"]
     assert len(result["frames"]) == sum(s.frames for s in QUICK_SEGMENTS)
     md = (tmp_path / "video.md").read_text()
     table = [line for line in md.splitlines() if line.startswith("|")]
@@ -79,6 +80,9 @@ def test_eval_video_quick(tmp_path):
     assert summ["cold-1"]["cut_recovery_frames"] == 0
     for f in result["frames"]:
         assert f["iterations"]["fps-30"] >= 1
-    w = result["window"]["window-30"]
-    assert w["shown"] + w["dropped"] == len(result["frames"]) and w["shown"] > 0
-    assert "the window at 30 fps" in md
+    for m in ("window-30", "geowindow-30"):
+        w = result["window"][m]
+        assert w["shown"] + w["dropped"] == len(result["frames"]) and w["shown"] > 0
+    geo = [line for line in md.splitlines() if line.startswith("the window at 30 fps, geometry only:")]
+    assert len(geo) == 1 and "to keep up" not in geo[0]
+    assert all(f["iterations"]["geowindow-30"] == 0 for f in result["frames"])

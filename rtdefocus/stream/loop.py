@@ -316,9 +316,10 @@ class Player(SlidesMixin):
         ``frame`` end before the frame after next arrives (one period after the next one), or
         ``(True, None)`` when not even the minimum does (the next frame would then be dropped
         and this one shown late: geometry only keeps up instead). Otherwise ``(False,
-        iterations)``. A picture that did not
-        change since the frame before is compensated whatever the time: dropping a copy of it
-        shows nothing else, and once compensated its repeats are cheap."""
+        iterations)``. A picture that did not change since the frame before is compensated
+        whatever the time (dropping a copy of it shows nothing else, and once compensated its
+        repeats are cheap), and so is one after :data:`CATCH_UP_PROBE` geometry frames in a row,
+        at the minimum budget (geometry frames measure nothing)."""
         b = self.budget
         prev, self._prev_input = self._prev_input, frame.image
         if (b is None or iterations is None or not self.catch_up or not self.live
