@@ -77,8 +77,10 @@ ProgressFn = Callable[[int, "int | None"], None]
 CATCH_UP_SHARE = 0.95
 #: After this many frames in a row shown with geometry only, the next is compensated anyway (at
 #: the minimum budget): geometry frames measure nothing, and the device may have become faster
-#: (the first frames' costs, another program's load, a simpler picture).
-CATCH_UP_PROBE = 8
+#: (the first frames' costs, another program's load, a simpler picture). Each probe that is
+#: followed by geometry again doubles the wait, up to CATCH_UP_PROBE_MAX frames: on a device
+#: that cannot keep up, a probe is a late frame.
+CATCH_UP_PROBE, CATCH_UP_PROBE_MAX = 8, 128
 
 
 class _End:
@@ -188,6 +190,7 @@ class Player(SlidesMixin):
         self._last_image: np.ndarray | None = None   # the last input compensated (budget kinds)
         self._prev_input: np.ndarray | None = None   # the last input seen (catch-up)
         self._geometry_run = 0                       # frames in a row shown with geometry only
+        self._probe_every = CATCH_UP_PROBE           # ... before a probe (see CATCH_UP_PROBE)
         self._writer: SinkWriter | None = None
 
     def settings(self) -> dict:
@@ -318,8 +321,9 @@ class Player(SlidesMixin):
         and this one shown late: geometry only keeps up instead). Otherwise ``(False,
         iterations)``. A picture that did not change since the frame before is compensated
         whatever the time (dropping a copy of it shows nothing else, and once compensated its
-        repeats are cheap), and so is one after :data:`CATCH_UP_PROBE` geometry frames in a row,
-        at the minimum budget (geometry frames measure nothing)."""
+        repeats are cheap), and so is one after :data:`CATCH_UP_PROBE` geometry frames in a row
+        (doubling after each probe that did not fit), at the minimum budget (geometry frames
+        measure nothing)."""
         b = self.budget
         prev, self._prev_input = self._prev_input, frame.image
         if (b is None or iterations is None or not self.catch_up or not self.live
@@ -330,12 +334,14 @@ class Player(SlidesMixin):
         rest = b.frame_seconds(0, repeat, worst=True)
         if rest is None:
             return False, iterations
-        if self._geometry_run >= CATCH_UP_PROBE:      # a probe: measure the device again
+        if self._geometry_run >= self._probe_every:   # a probe: measure the device again
+            self._probe_every = min(2 * self._probe_every, CATCH_UP_PROBE_MAX)
             return False, b.minimum
         left = CATCH_UP_SHARE * 2.0 * b.period - (time.perf_counter() - frame.t_read) - rest
         fit = int(left / b.per_iteration) if b.per_iteration > 0 else iterations
         if fit < b.minimum:
             return True, None
+        self._probe_every = CATCH_UP_PROBE               # it fits again
         return False, min(iterations, fit)
 
     def _show_geometry(self, frame: Frame, t_start: float) -> None:
