@@ -187,8 +187,8 @@ class Player(SlidesMixin):
         self._work: _Work | None = None
         self.threads = bool(threads)
         self.catch_up = bool(catch_up)
-        self._last_image: np.ndarray | None = None   # the last input compensated (budget kinds)
-        self._prev_input: np.ndarray | None = None   # the last input seen (catch-up)
+        self._prev_input: np.ndarray | None = None   # the last input (budget kinds, catch-up)
+        self._prev_compensated = False               # ... and whether it was compensated
         self._geometry_run = 0                       # frames in a row shown with geometry only
         self._probe_every = CATCH_UP_PROBE           # ... before a probe (see CATCH_UP_PROBE)
         self._writer: SinkWriter | None = None
@@ -274,10 +274,10 @@ class Player(SlidesMixin):
             return self.budget.iterations_for(repeat)
         return None  # the Compensator's own budget
 
-    def _is_repeat(self, image: np.ndarray) -> bool:
-        """The adaptive budget's kind of frame: the same picture as the last one compensated
-        (a paused video, a still) skips the warp and the motion estimate."""
-        prev = self._last_image
+    def _same_as_previous(self, image: np.ndarray) -> bool:
+        """Realtime with the adaptive budget: the same picture as the frame before (a paused
+        video, a still)."""
+        prev, self._prev_input = self._prev_input, image
         return (self.budget is not None and prev is not None and prev.shape == image.shape
                 and np.array_equal(prev, image))
 
@@ -313,7 +313,7 @@ class Player(SlidesMixin):
             st.add("latency", t1 - t_read)
         st.frame_out()
 
-    def _catch_up_iterations(self, frame: Frame, iterations: int | None,
+    def _catch_up_iterations(self, frame: Frame, iterations: int | None, still: bool,
                              repeat: bool) -> tuple[bool, int | None]:
         """Realtime, full mode, adaptive budget: ``(False, n)`` with the iterations n that let
         ``frame`` end before the frame after next arrives (one period after the next one), or
@@ -325,11 +325,8 @@ class Player(SlidesMixin):
         (doubling after each probe that did not fit), at the minimum budget (geometry frames
         measure nothing)."""
         b = self.budget
-        prev, self._prev_input = self._prev_input, frame.image
         if (b is None or iterations is None or not self.catch_up or not self.live
-                or self.controls.mode != "full"):
-            return False, iterations
-        if prev is not None and prev.shape == frame.image.shape and np.array_equal(prev, frame.image):
+                or self.controls.mode != "full" or still):
             return False, iterations
         rest = b.frame_seconds(0, repeat, worst=True)
         if rest is None:
@@ -506,9 +503,13 @@ class Player(SlidesMixin):
             if self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
             else:
-                repeat = self._is_repeat(frame.image)
+                # ``still``: the picture did not change; ``repeat``: nor since the last frame
+                # compensated, which then skips the warp and the motion estimate (budget kinds)
+                still = self._same_as_previous(frame.image)
+                repeat = still and self._prev_compensated
                 geometry, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
-                                                            repeat)
+                                                            still, repeat)
+                self._prev_compensated = not geometry and self.controls.mode == "full"
                 self._geometry_run = self._geometry_run + 1 if geometry else 0
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
@@ -516,8 +517,6 @@ class Player(SlidesMixin):
                     out = self._render(frame.image, iterations=iters)
                     self._present(out, frame.index, frame.t_read, t0)
                     self._update_budget(t0, repeat)
-                    if self.budget is not None:
-                        self._last_image = frame.image
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)
