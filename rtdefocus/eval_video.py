@@ -207,7 +207,7 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
 
         def write(self, frame: np.ndarray, index: int) -> None:
             g = self.player.stats.geometry_frames
-            its = (0 if g > self._geometry or player.controls.mode != "full"
+            its = (0 if g > self._geometry or self.player.controls.mode != "full"
                    else int(comp.last_info.get("iterations", 0)))
             self._geometry = g
             self.shown[index] = (frame.copy(), its)
@@ -364,7 +364,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
             elif m.startswith(("window-", "geowindow-")):
                 if i in windows[m]:
                     on_screen[m] = windows[m][i]
-                # (nothing shown yet: the projector still shows the geometry of frame 0)
+                # (nothing shown yet: scored as geometry only)
                 frame, iters = on_screen[m] if on_screen[m] is not None else (warped, 0)
                 secs = float("nan")
             else:
