@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import os
 import sys
 import time
@@ -21,6 +22,16 @@ import numpy as np
 import rtdefocus as rd
 from rtdefocus import sim
 from rtdefocus.samples import photographs
+
+
+def synced(ops, times: dict, name: str, fn):
+    """``fn()`` with a ``finish()`` on either side, its seconds appended to ``times[name]``."""
+    ops.finish()
+    t0 = time.perf_counter()
+    out = fn()
+    ops.finish()
+    times[name].append(time.perf_counter() - t0)
+    return out
 
 
 def main(argv=None) -> int:
@@ -42,13 +53,7 @@ def main(argv=None) -> int:
     s, ops = comp._solver, comp._solver.ops
     colour = s.precondition in ("colour", "colour+spatial")
     times = collections.defaultdict(list)
-
-    def timed(name, fn):
-        ops.finish()
-        t0 = time.perf_counter()
-        fn()
-        ops.finish()
-        times[name].append(time.perf_counter() - t0)
+    timed = functools.partial(synced, ops, times)
 
     for _ in range(a.rounds):
         ops.fista_state_write(s._d, s._theta, s._beta, 2.0 / s.L, 8)
@@ -98,14 +103,7 @@ def moving_start(comp, rounds: int) -> None:
     s, ops = comp._solver, comp._solver.ops
     photo = photographs()["astronaut"]
     times = collections.defaultdict(list)
-
-    def timed(name, fn):
-        ops.finish()
-        t0 = time.perf_counter()
-        out = fn()
-        ops.finish()
-        times[name].append(time.perf_counter() - t0)
-        return out
+    timed = functools.partial(synced, ops, times)
 
     def pan(i):
         m = np.float32([[1, 0, -6 * i], [0, 1, 0]])

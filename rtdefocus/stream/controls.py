@@ -133,7 +133,7 @@ class IterationBudget:
         """Expected seconds of a compensated frame of that kind at ``iterations`` (default its
         budget); ``worst``: from the slowest of the last few frames' rests instead of their
         average (a deadline that must not be missed). None before the first measured frame."""
-        kind = bool(repeat) if self._overhead[bool(repeat)] is not None else not repeat
+        kind = self._measured_kind(repeat)
         rest = self._overhead[kind]
         if self.per_iteration is None or rest is None:
             return None
@@ -141,6 +141,11 @@ class IterationBudget:
             rest = max(rest, *self._recent[kind])
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
+
+    def _measured_kind(self, repeat: bool) -> bool:
+        """The kind whose averages stand for ``repeat``: its own once measured, else the other."""
+        repeat = bool(repeat)
+        return repeat if self._overhead[repeat] is not None else not repeat
 
     def _ema(self, old: float | None, new: float) -> float:
         return new if old is None else (1 - self.alpha) * old + self.alpha * new
@@ -157,9 +162,7 @@ class IterationBudget:
         self._recent[repeat].append(rest)
         if self.per_iteration:
             for kind in (False, True):
-                rest = self._overhead[kind]
-                if rest is None:
-                    rest = self._overhead[not kind]
+                rest = self._overhead[self._measured_kind(kind)]
                 fit = (self.period - rest) / self.per_iteration
                 old = self._iterations[kind]
                 grow = max(old + 1, math.ceil(old * 1.5))
