@@ -279,15 +279,18 @@ void reduce_partials(__global const float *restrict partials, const int n_groups
 
 /* dst[c, y, x] = lo + scale * lut[c, src[y, x, c]]: decode the warped frame to linear light and
  * map it into the headroom [lo, lo + scale].  src uint8 (H, W, 3), lut float32 (3, 256),
- * dst float32 (3, H, W); npix = H W. */
+ * dst float32 (3, H, W); npix = H W. Each work-item takes VEC consecutive pixels (global size
+ * ceil(ceil(npix / VEC) / WG) * WG, like carry): a pixel per work-item made 60000 groups of 8
+ * on a CPU device, 1.2 ms at 800x600 on PoCL, of which the scheduling was most. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void decode_lut(__global const uchar *restrict src, __global const float *restrict lut,
                 const float lo, const float scale, __global float *restrict dst, const int npix)
 {
-    const size_t i = get_global_id(0);
-    if (i >= (size_t)npix) return;
-    for (int c = 0; c < 3; ++c)
-        dst[(size_t)c * npix + i] = lo + scale * lut[c * 256 + src[3 * i + c]];
+    const int i0 = get_global_id(0) * VEC;
+    const int i1 = min(i0 + VEC, npix);
+    for (int i = i0; i < i1; ++i)
+        for (int c = 0; c < 3; ++c)
+            dst[(size_t)c * npix + i] = lo + scale * lut[c * 256 + src[3 * i + c]];
 }
 
 /* dst[y, x, c] = the code whose response is nearest P[c, y, x] under piecewise-linear
@@ -339,10 +342,14 @@ void encode_lut(__global const float *restrict P, __global const float *restrict
  * (3, H, W); map float2 (H, W); valid uchar (H, W); each work-item takes VEC consecutive pixels
  * (global size ceil(ceil(H W / VEC) / WG) * WG): one pixel per work-item made ~60000 groups of
  * 8 on a CPU device, whose scheduling cost ~20 ms a call on PoCL; a loop of 16 pixels ~2 ms.
- * dst may be base_new or fallback, never src or base_prev. */
+ * dst may be base_new or fallback, never src or base_prev. CARRY_TWO: also dst2 = the same carry
+ * of src2 (FISTA's previous iterate beside P), by the same work-item right after the first, so
+ * that the map, mask, bases and fallback it reads again are still in its cache (the carry is
+ * memory-bound: two passes cost ~1.5x one, where two calls cost 2x). */
 #define CARRY_BASE 1
 #define CARRY_CLAMP 2
 #define CARRY_IDENTITY 4
+#define CARRY_TWO 8
 inline void carry_pixel(__global const float *restrict src, __global const float *restrict base_prev,
                         __global const float *base_new, __global const float *fallback,
                         __global const float2 *restrict map, __global const uchar *restrict valid,
@@ -515,16 +522,23 @@ __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void carry(__global const float *restrict src, __global const float *restrict base_prev,
            __global const float *base_new, __global const float *fallback,
            __global const float2 *restrict map, __global const uchar *restrict valid,
-           __global float *dst, const int flags, const int H, const int W)
+           __global float *dst, __global const float *restrict src2, __global float *dst2,
+           const int flags, const int H, const int W)
 {
     const int i0 = get_global_id(0) * VEC;
+    const bool two = flags & CARRY_TWO;
 #if VEC == 16
     if (i0 + 16 <= H * W) {
         carry16(src, base_prev, base_new, fallback, map, valid, dst, flags, H, W, i0);
+        if (two)
+            carry16(src2, base_prev, base_new, fallback, map, valid, dst2, flags, H, W, i0);
         return;
     }
 #endif
     const int i1 = min(i0 + VEC, H * W);
-    for (int i = i0; i < i1; ++i)
+    for (int i = i0; i < i1; ++i) {
         carry_pixel(src, base_prev, base_new, fallback, map, valid, dst, flags, H, W, i);
+        if (two)
+            carry_pixel(src2, base_prev, base_new, fallback, map, valid, dst2, flags, H, W, i);
+    }
 }

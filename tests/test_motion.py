@@ -275,6 +275,43 @@ def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still, kind, varia
                           else fb[:, ~valid])
 
 
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+@pytest.mark.parametrize("kind,still", [("noisy", False), ("translation", False), ("zoom", True)])
+def test_a_carry_of_two_fields_is_two_carries(cl_runtime, kind, still, variant):
+    """``carry(..., src2=, dst2=)`` (the warm start's P and FISTA's P_prev in one pass) gives
+    each field what a carry of its own gives, on both backends and both kernel shapes."""
+    from rtdefocus.cl.solve import ClSolveOps
+    from rtdefocus.reference.metric import Metric
+    from rtdefocus.reference.ops import NumpyOps, carry_field
+
+    src, bp, bn, fb, map_xy, valid = _motion_case(seed=2, kind=kind)
+    src2 = _motion_case(seed=3, kind=kind)[0]
+    motion = None if still else map_xy
+    want = [carry_field(f, motion, valid, fb, bp, bn, clamp=True) for f in (src, src2)]
+    h, w = valid.shape
+    psfs = np.zeros((1, 3, 3), np.float32)
+    psfs[0, 1, 1] = 1.0
+    idx, wts = np.zeros((h, w, 4), np.int32), np.zeros((h, w, 4), np.float32)
+    wts[..., 0] = 1.0
+    metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
+    for ops in (NumpyOps(psfs, idx, wts, metric),
+                ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant)):
+        ops.set_motion(motion, valid)
+        bufs = [ops.new() for _ in range(7)]
+        for b, host in zip(bufs, (src, src2, bp, bn, fb), strict=False):
+            ops.upload(host, b)
+        s1, s2, bp_, bn_, fb_, d1, d2 = bufs
+        ops.carry(s1, fb_, d1, base_prev=bp_, base_new=bn_, clamp=True, src2=s2, dst2=d2)
+        for got, exp in zip((d1, d2), want, strict=True):
+            np.testing.assert_allclose(ops.download(got), exp, atol=2e-6)
+        with pytest.raises(rd.InputError, match="src2 with dst2"):
+            ops.carry(s1, fb_, d1, base_prev=bp_, base_new=bn_, src2=s2)
+        with pytest.raises(rd.InputError, match="two destinations"):
+            ops.carry(s1, fb_, d1, base_prev=bp_, base_new=bn_, src2=s2, dst2=fb_)
+        with pytest.raises(rd.InputError, match="cannot write over"):
+            ops.carry(s1, fb_, d1, base_prev=bp_, base_new=bn_, src2=s2, dst2=s1)
+
+
 def test_a_repeated_input_reuses_its_warp_and_an_edited_one_does_not(calib, pictures):
     """A paused video skips the warp; the cache holds a copy, so an input edited in place is
     warped again."""
@@ -303,3 +340,45 @@ def test_fast_adjoint_ends_where_the_exact_one_does(calib, pictures):
     assert abs(d["fast"][-1] - d["exact"][-1]) < 0.01 * d["exact"][-1], d
     with pytest.raises(rd.InputError, match="adjoint"):
         rd.Compensator(calib, adjoint="approximate")
+
+
+def test_warm_up_runs_the_moving_path_and_leaves_no_video_state(calib, pictures):
+    """``Compensator.warm_up`` compensates a moving synthetic clip (its last frame starts from
+    the motion, as a video's would) and forgets it: the next frame starts cold, as after
+    ``reset()``, and gives what a fresh Compensator gives."""
+    a, _ = pictures
+    comp = rd.Compensator(calib)
+    info = comp.warm_up(iterations=1)
+    assert info["start"] == "motion" and info["iterations"] == 1
+    assert {"warp", "solve", "total"} <= set(info["seconds"])
+    frame = _crop(a, 50, 50)
+    out = comp.compensate(frame, iterations=2)
+    assert comp.last_info["start"] == "cold"
+    fresh = rd.Compensator(calib, backend=comp.backend).compensate(frame, iterations=2)
+    assert np.abs(out.astype(int) - fresh).max() <= 1
+    assert rd.Compensator(calib, method="none").warm_up() is None
+
+
+def test_the_motion_thread_of_a_gpu_device_gives_the_inline_result(calib, pictures):
+    """On a GPU device the motion estimate runs on a helper thread beside the cold start's blur;
+    on a CPU device in turn with it. Both orders give the same frames, bit for bit."""
+    if not rd.Compensator(calib).backend == "opencl":
+        pytest.skip("needs an OpenCL device")
+    a, _ = pictures
+    frames = [_crop(a, 60 + 5 * i, 80 + 2 * i) for i in range(4)]
+    outs = {}
+    for gpu in (False, True):
+        comp = rd.Compensator(calib, backend="opencl")
+        ops = comp._solver.ops
+
+        class Runtime:                 # the device's runtime, told to say GPU or not
+            def __getattr__(self, name, rt=ops.runtime):
+                return getattr(rt, name)
+            is_gpu = gpu
+
+        ops.runtime = Runtime()
+        outs[gpu] = [comp.compensate(f, iterations=1) for f in frames]
+        assert comp.last_info["start"] == "motion"
+        assert (comp._pool is not None) == gpu
+    for x, y in zip(outs[False], outs[True], strict=True):
+        assert np.array_equal(x, y)

@@ -251,6 +251,13 @@ class PacedCompensator:
         self.last_info = info
         return out
 
+    def warm_up(self, iterations=1):
+        """The real warm-up, reporting the paced cost of its moving frame."""
+        info = dict(self.comp.warm_up(iterations=iterations))
+        solve = info["iterations"] * self.per_iteration
+        info["seconds"] = {"solve": solve, "total": self.overhead + solve}
+        return info
+
 
 def test_realtime_budget_holds_the_frame_rate(comp):
     """The loop feeds the budget each frame's solve and frame time: it settles on what fits the
@@ -318,6 +325,100 @@ def test_catch_up_leaves_a_still_picture_and_a_fast_device_alone(comp):
     stats = play(fast, ArraySource(synthetic_frames(30), fps=30.0, live=True),
                  RecordingSink(realtime=True))
     assert stats.geometry_frames == 0 and stats.dropped <= 1
+
+
+class SlowFramesCompensator(PacedCompensator):
+    """A PacedCompensator whose frames listed in ``slow`` cost ``slow_seconds`` instead (a
+    cut, another program's burst of load)."""
+
+    def __init__(self, comp, overhead, per_iteration, slow, slow_seconds):
+        super().__init__(comp, overhead, per_iteration)
+        self.slow, self.slow_seconds, self.calls = set(slow), slow_seconds, 0
+
+    def compensate(self, image, **kw):
+        t0 = time.perf_counter()
+        out = super().compensate(image, **kw)
+        self.calls += 1
+        if self.calls in self.slow:
+            time.sleep(max(0.0, self.slow_seconds - (time.perf_counter() - t0)))
+            self.last_info["seconds"]["total"] = time.perf_counter() - t0
+        return out
+
+
+def test_catch_up_returns_to_compensating_after_one_slow_frame(comp):
+    """One frame that costs 5 periods does not hold the loop in geometry only: the deadline
+    estimate is the median of the last few frames, and a probe follows 2 geometry frames. A
+    device that needs ~1.6 periods a frame then compensates about every other frame again."""
+    fps, n = 30.0, 45
+    comp.reset()
+    paced = SlowFramesCompensator(comp, overhead=0.045, per_iteration=0.004, slow={3},
+                                  slow_seconds=0.170)
+    sink = RecordingSink(realtime=True)
+    player = Player(paced, ArraySource(synthetic_frames(n), fps=fps, live=True), sink)
+    stats = player.run()
+    compensated = stats.frames_out - stats.geometry_frames
+    assert paced.calls >= 3 + 10, (paced.calls, stats.summary())   # >= 10 after the slow one
+    assert compensated >= n // 3 and stats.geometry_frames >= 5, stats.summary()
+    assert stats.dropped <= 4 + 2, stats.summary()     # the slow frame's own ~4, and few more
+
+
+@pytest.mark.parametrize("frame_ms,least,most", [(59, 9, 45), (150, 0, 3)])
+def test_catch_up_probes_soon_near_the_deadline_and_rarely_far_from_it(comp, frame_ms, least,
+                                                                        most):
+    """At 30 fps a frame of 59 ms never fits the deadline (0.85 of two periods, 57 ms) but ends
+    before the frame after next (67 ms): probes follow every 2 geometry frames and about a third
+    of the frames are compensated. One of 150 ms is far over: probes wait 32 frames, and drop
+    little."""
+    n = 45
+    comp.reset()
+    paced = PacedCompensator(comp, overhead=frame_ms / 1e3 - 0.004, per_iteration=0.004)
+    player = Player(paced, ArraySource(synthetic_frames(n), fps=30.0, live=True),
+                    RecordingSink(realtime=True))
+    stats = player.run()
+    compensated = stats.frames_out - stats.geometry_frames
+    assert least <= compensated <= most, stats.summary()
+    assert stats.dropped <= (2 if frame_ms < 66 else 2 + 4 * compensated), stats.summary()
+
+
+def test_live_playback_warms_the_compensator_up_first(comp):
+    """A live player runs ``warm_up`` once, before the first frame, and starts its budget from
+    the moving frame it timed; file rendering does not."""
+    calls = []
+
+    class Spy(PacedCompensator):
+        def warm_up(self, iterations=1):
+            calls.append(("warm_up", iterations))
+            return {"iterations": 1, "seconds": {"solve": 0.004, "total": 0.054}}
+
+        def compensate(self, image, **kw):
+            calls.append(("compensate", None))
+            return super().compensate(image, **kw)
+
+    comp.reset()
+    spy = Spy(comp, overhead=0.005, per_iteration=0.002)
+    player = Player(spy, ArraySource(synthetic_frames(3), fps=30.0, live=True),
+                    RecordingSink(realtime=True))
+    budget = player.budget
+    player.run()
+    assert calls[0] == ("warm_up", budget.minimum) and calls.count(("warm_up", 1)) == 1
+    assert len(calls) > 1 and all(c[0] == "compensate" for c in calls[1:])
+    calls.clear()
+    play(spy, ArraySource(synthetic_frames(3)), RecordingSink())
+    assert calls and all(c[0] == "compensate" for c in calls)
+
+
+def test_budget_deadline_is_the_median_of_the_last_frames():
+    """``frame_seconds(deadline=True)`` takes the median of the last RECENT rests: one slow
+    frame does not move it, two in a row do."""
+    b = IterationBudget(30.0)
+    for rest in (0.040, 0.041, 0.039):
+        b.update(rest + 0.004, 0.004, 1)
+    assert b.frame_seconds(0, deadline=True) == pytest.approx(0.040, abs=1e-9)
+    b.update(0.174, 0.004, 1)                         # one slow frame: (0.041, 0.039, 0.170)
+    assert b.frame_seconds(0, deadline=True) == pytest.approx(0.041, abs=1e-9)
+    assert b.frame_seconds(0) > 0.07                  # (the average does move)
+    b.update(0.174, 0.004, 1)                         # a lasting change
+    assert b.frame_seconds(0, deadline=True) == pytest.approx(0.170, abs=1e-9)
 
 
 def test_budget_keeps_a_repeated_frames_budget_apart():
@@ -705,3 +806,16 @@ def test_cli_play_flatten_reports_the_clipped_share(tmp_path, capsys):
     assert "darker than the room light allows" in out
     assert cli.main(["-q", "play", str(setup), str(video), "--out", "null"]) == 0
     assert "clipped" not in capsys.readouterr().out
+
+
+def test_budget_leaves_cheap_new_frames_out_of_the_deadline():
+    """A cut's cold start (``deadline=False``) moves the average but not the deadline's median
+    of moving frames (unless there is nothing else to go by)."""
+    b = IterationBudget(30.0)
+    b.update(0.020, 0.004, 1, deadline=False)         # the first frame, cold
+    assert b.frame_seconds(0, deadline=True) == pytest.approx(0.016, abs=1e-9)
+    for _ in range(3):
+        b.update(0.054, 0.004, 1)                     # moving frames
+    b.update(0.030, 0.004, 1, deadline=False)         # a cut
+    assert b.frame_seconds(0, deadline=True) == pytest.approx(0.050, abs=1e-9)
+    assert b.frame_seconds(0) < 0.050

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..reference.blur import check_field
 from ..reference.lut import ENC_STEPS, ENC_T, inverse_lut_tables
 from ..reference.metric import Metric
-from ..reference.ops import boost_edges, check_adjoint, scale_preconditioner
+from ..reference.ops import boost_edges, check_adjoint, check_carry, scale_preconditioner
 from .blur import ClBlur
 
 log = logging.getLogger(__name__)
@@ -146,7 +146,8 @@ class ClSolveOps:
         # every compute unit busy on the rare rejected step.
         self._undo_global = (min(self._e_groups, 4 * max(1, dev.max_compute_units)) * wg,)
         npix = h * w
-        self._p_global = (-(-npix // wg) * wg,)
+        items_p = -(-npix // vec)              # decode_lut, carry: VEC pixels per work-item
+        self._p_global = (-(-items_p // wg) * wg,)
         n_enc = -(-npix // 16)                  # encode_lut: 16 pixels per work-item
         self._enc_global = (-(-n_enc // wg) * wg,)
         # The second reduction stage: one group per quantity, as wide as the device allows (<= 256).
@@ -378,21 +379,21 @@ class ClSolveOps:
         self._valid.set(np.ascontiguousarray(valid, np.uint8).reshape(h, w), queue=self.queue)
         self._identity = map_xy is None
 
-    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False) -> None:
+    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False,
+              src2=None, dst2=None) -> None:
         """dst = base_new + B(src − base_prev) where valid, else fallback (``kernels/solver.cl``
-        ``carry``; twin :func:`rtdefocus.reference.ops.carry_field`). ``dst`` may be
-        ``fallback`` or ``base_new``, never ``src`` or ``base_prev``."""
-        if dst is src or dst is base_prev:
-            raise InputError("carry cannot write over its source field; pass another buffer")
-        if (base_prev is None) != (base_new is None):
-            raise InputError("carry takes both bases (base_prev, base_new) or neither")
+        ``carry``; twin :func:`rtdefocus.reference.ops.carry_field`); with ``src2``, also
+        ``dst2`` = the same of ``src2`` in the same pass. A destination may be ``fallback`` or
+        ``base_new``, never a source or ``base_prev``."""
+        check_carry(src, fallback, dst, base_prev, base_new, src2, dst2)
         flags = ((1 if base_prev is not None else 0) | (2 if clamp else 0)
-                 | (4 if self._identity else 0))
+                 | (4 if self._identity else 0) | (8 if src2 is not None else 0))
         bp = (base_prev if base_prev is not None else src).data
         bn = (base_new if base_new is not None else src).data
         self._k["carry"](self.queue, self._p_global, (self._wg,), src.data, bp, bn,
                          fallback.data, self._map.data, self._valid.data, dst.data,
-                         np.int32(flags), self._h, self._w)
+                         (src if src2 is None else src2).data,
+                         (dst if dst2 is None else dst2).data, np.int32(flags), self._h, self._w)
 
     # ------------------------------------------------------------------ LUT I/O
     def _lut_buffers(self, lut: np.ndarray, encoder: bool):

@@ -22,6 +22,7 @@ import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 
+import cv2
 import numpy as np
 
 from ..calib.file import Calibration
@@ -210,6 +211,31 @@ class Compensator:
         """Forget the previous frame (the next :meth:`compensate` starts from its target): call
         it on a seek or when frames stop coming in order."""
         self._prev_warped = None
+
+    def warm_up(self, iterations: int = 1) -> dict | None:
+        """Run the video path once, on three synthetic frames of the projector's size, moving,
+        so that its first-use costs (kernel builds on the device, the motion estimate's
+        thread and buffers) are paid now and not by the first moving frame of a video; then
+        :meth:`reset`. Returns the moving frame's :attr:`last_info` (its ``seconds`` stand for
+        a moving frame's cost at ``iterations``), or None when no solver runs (``method``
+        ``"wiener"`` / ``"none"``)."""
+        if self._solver is None:
+            return None
+        wp, hp = self.projector_size
+        rng = np.random.default_rng(0)
+        # smooth texture with edges (a flow estimate has something to follow), moved 4 px a
+        # frame; the second moving frame is the one timed (the first still pays some first uses)
+        base = cv2.resize(rng.integers(0, 256, (hp // 16 + 2, wp // 16 + 2, 3), dtype=np.uint8),
+                          (wp + 8, hp), interpolation=cv2.INTER_CUBIC)
+        self.reset()
+        try:
+            for shift in (0, 4, 8):
+                self.compensate(np.ascontiguousarray(base[:, shift:shift + wp]),
+                                iterations=iterations)
+            return dict(self.last_info)
+        finally:
+            self.reset()
+            self._warp_cache = None
 
     def compensate(self, image: np.ndarray, *, iterations: int | None = None,
                    warm_start: bool = True) -> np.ndarray:
@@ -413,16 +439,22 @@ class Compensator:
             s.start_from_target()
             return "cold"
         # The motion estimate (OpenCV, which releases the GIL) runs on a helper thread while
-        # the device blurs the cold start, which the warm start must beat (a cut uses neither).
-        # (On this 2-core PoCL machine the device's threads already fill the cores: no gain
-        # measured; a GPU blurs while the CPU computes the flow.)
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-motion")
-            # The thread lives as long as this Compensator, not until the interpreter exits.
-            weakref.finalize(self, self._pool.shutdown, wait=False)
-        pending = self._pool.submit(self._motion.estimate, prev, warped)
-        d_cold = s.cold_distance()
-        motion = pending.result()
+        # a GPU blurs the cold start, which the warm start must beat (a cut uses neither). A
+        # CPU device's threads already fill the cores: there the two in turn were steadier and
+        # ~3 ms faster a moving frame (800x600, 2 PoCL cores: 56 against 57-60 ms).
+        runtime = getattr(ops, "runtime", None)
+        if runtime is None or not runtime.is_gpu:
+            motion = self._motion.estimate(prev, warped)
+            d_cold = None if motion.cut else s.cold_distance()
+        else:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1,
+                                                thread_name_prefix="rtdefocus-motion")
+                # The thread lives as long as this Compensator, not until the interpreter exits.
+                weakref.finalize(self, self._pool.shutdown, wait=False)
+            pending = self._pool.submit(self._motion.estimate, prev, warped)
+            d_cold = s.cold_distance()
+            motion = pending.result()
         if motion.cut:
             s.start_from_target()
             return "cut"

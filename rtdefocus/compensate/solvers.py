@@ -385,17 +385,19 @@ class Solver:
         """
         ops = self.ops
         momentum, theta, beta = self._carried
-        # (into _s: _P_alt may hold the cold start of cold_distance)
+        momentum = momentum and self.solver == "fista"
+        # P into _s (_P_alt may hold the cold start of cold_distance) and, in the same pass,
+        # P_prev into _fs (where the motion is invalid both become the cold start: P_prev = P);
+        # the second field costs ~half a carry, and is wasted only when the cold start wins.
         ops.carry(self.P, self.target, self._s, base_prev=self.target_prev,
-                  base_new=self.target, clamp=True)
+                  base_new=self.target, clamp=True, src2=self._P_prev if momentum else None,
+                  dst2=self._fs if momentum else None)
         self.P, self._s = self._s, self.P
         self._forget_p()
         kept, _, _ = self.keep_better_than_cold(d_cold)
-        if not kept or not momentum or self.solver != "fista":
+        if not kept or not momentum:
             return kept
-        ops.carry(self._P_prev, self.P, self._s, base_prev=self.target_prev,
-                  base_new=self.target, clamp=True)
-        self._P_prev, self._s = self._s, self._P_prev
+        self._P_prev, self._fs = self._fs, self._P_prev
         self._gradient()                            # the first iteration's, done here
         self._grad_ready = True
         ops.carry(self._G_prev, self._G, self._fs)

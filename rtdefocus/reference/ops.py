@@ -23,7 +23,7 @@ from .lut import encode_lut, inverse_lut_tables
 from .metric import Metric, metric_field
 
 __all__ = ["ADJOINTS", "NumpyOps", "boost_edges", "boost_field", "carry_field", "check_adjoint",
-           "scale_preconditioner"]
+           "check_carry", "scale_preconditioner"]
 
 #: How FISTA's gradient ``Fᵀ q`` is formed. ``"exact"``: the transpose of F, each tap weighted by
 #: the blend at the pixel it came from (``blur_adjoint``). ``"fast"``: the forward blur with the
@@ -112,6 +112,27 @@ def carry_field(src, map_xy, valid, fallback, base_prev=None, base_new=None,
     if clamp:
         np.clip(out, 0.0, 1.0, out=out)
     return out.astype(np.float32)
+
+
+def check_carry(src, fallback, dst, base_prev, base_new, src2, dst2) -> None:
+    """Raise :class:`InputError` unless a carry's buffers are consistent (``ops.carry`` of
+    either backend): both bases or neither, ``src2`` with ``dst2``, and no destination that is
+    a source or ``base_prev`` (the carry reads them around each pixel); with two fields, none
+    that is the fallback or ``base_new`` either."""
+    if (base_prev is None) != (base_new is None):
+        raise InputError("carry takes both bases (base_prev, base_new) or neither")
+    if (src2 is None) != (dst2 is None):
+        raise InputError("carry takes src2 with dst2 (the second field and where it goes) or "
+                         "neither")
+    reads = [a for a in (src, base_prev, src2) if a is not None]
+    for d in (dst, dst2):
+        if d is not None and any(d is a for a in reads):
+            raise InputError("carry cannot write over a field it reads (src, src2, base_prev); "
+                             "pass another buffer")
+    if dst2 is not None and (dst2 is dst or any(d is a for d in (dst, dst2)
+                                                for a in (fallback, base_new))):
+        raise InputError("a carry of two fields needs two destinations of their own (not dst "
+                         "twice, nor fallback or base_new: the second pass reads them)")
 
 
 def boost_edges(gamma_psf, idx, wts) -> tuple[np.ndarray, np.ndarray]:
@@ -380,10 +401,17 @@ class NumpyOps:
         self._motion = (None if map_xy is None else np.asarray(map_xy, np.float32),
                         np.asarray(valid, bool))
 
-    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False) -> None:
-        """dst = :func:`carry_field` of ``src`` along the motion of :meth:`set_motion`."""
+    def carry(self, src, fallback, dst, base_prev=None, base_new=None, clamp=False,
+              src2=None, dst2=None) -> None:
+        """dst = :func:`carry_field` of ``src`` along the motion of :meth:`set_motion` (and
+        ``dst2`` the same of ``src2``)."""
+        check_carry(src, fallback, dst, base_prev, base_new, src2, dst2)
         map_xy, valid = self._motion
+        out2 = (None if src2 is None
+                else carry_field(src2, map_xy, valid, fallback, base_prev, base_new, clamp))
         dst[...] = carry_field(src, map_xy, valid, fallback, base_prev, base_new, clamp)
+        if out2 is not None:
+            dst2[...] = out2
 
     def decode(self, codes, lut, lo, scale, dst) -> None:
         lut = np.asarray(lut, dtype=np.float32)

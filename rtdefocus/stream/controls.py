@@ -79,7 +79,9 @@ class KeyDispatcher:
         return action
 
 
-#: Frames whose rests :meth:`IterationBudget.frame_seconds` takes the worst of (``worst=True``).
+#: Frames whose rests :meth:`IterationBudget.frame_seconds` takes the median of
+#: (``deadline=True``): one slow frame does not hold the estimate up, a lasting change moves it
+#: within two frames.
 RECENT = 3
 
 
@@ -129,16 +131,17 @@ class IterationBudget:
         return self._iterations[bool(repeat)]
 
     def frame_seconds(self, iterations: int | None = None, repeat: bool = False,
-                      worst: bool = False) -> float | None:
+                      deadline: bool = False) -> float | None:
         """Expected seconds of a compensated frame of that kind at ``iterations`` (default its
-        budget); ``worst``: from the slowest of the last few frames' rests instead of their
-        average (a deadline that must not be missed). None before the first measured frame."""
+        budget); ``deadline``: from the median of the last :data:`RECENT` frames' rests
+        instead of their moving average, which one slow frame (a cut, a first use) holds up for
+        several frames. None before the first measured frame."""
         kind = self._measured_kind(repeat)
         rest = self._overhead[kind]
         if self.per_iteration is None or rest is None:
             return None
-        if worst:
-            rest = max(rest, *self._recent[kind])
+        if deadline:
+            rest = float(np.median(self._recent[kind]))
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
@@ -151,15 +154,17 @@ class IterationBudget:
         return new if old is None else (1 - self.alpha) * old + self.alpha * new
 
     def update(self, frame_seconds: float, solve_seconds: float, iterations: int,
-               repeat: bool = False) -> int:
-        """Record one frame (``repeat``: the same picture as the frame before); return the
-        budget for the next frame of that kind."""
+               repeat: bool = False, deadline: bool = True) -> int:
+        """Record one frame (``repeat``: the same picture as the frame before; ``deadline``
+        False: a new frame cheaper than the kind's usual, such as a cut's cold start, left out
+        of the deadline's median); return the budget for the next frame of that kind."""
         repeat = bool(repeat)
         if iterations > 0:
             self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
         rest = max(0.0, frame_seconds - solve_seconds)
         self._overhead[repeat] = self._ema(self._overhead[repeat], rest)
-        self._recent[repeat].append(rest)
+        if deadline or not self._recent[repeat]:
+            self._recent[repeat].append(rest)
         if self.per_iteration:
             for kind in (False, True):
                 rest = self._overhead[self._measured_kind(kind)]

@@ -37,7 +37,9 @@ slow device on moving content), a frame whose compensation would end after the f
 next has arrived is shown with geometry only (``catch_up``): a warp costs a fraction of a
 solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
 screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
-``stats.geometry_frames`` counts them).
+``stats.geometry_frames`` counts them). Before the first frame a live player runs the
+Compensator's video path once (:meth:`~rtdefocus.Compensator.warm_up`), so that the first moving
+frame neither pays first-use costs nor is timed from a still picture's.
 
 *File rendering* (a file or memory source into a file sink): the decoder blocks on a full
 queue, so every frame is compensated and written, in order, with the full iteration budget.
@@ -73,14 +75,20 @@ log = logging.getLogger(__name__)
 ProgressFn = Callable[[int, "int | None"], None]
 
 #: Catch-up: a frame is shown with geometry only when its compensation is expected to end later
-#: than this share of two periods after it was read (the frame after next arrives at two).
-CATCH_UP_SHARE = 0.95
+#: than this share of two periods after it was read (the frame after next arrives at two). The
+#: margin is a moving frame's spread on a CPU device: 50-62 ms for the same work (800x600, 2
+#: PoCL cores); at 0.95 a frame that waited ~10 ms behind a still one still went and ran late.
+CATCH_UP_SHARE = 0.85
 #: After this many frames in a row shown with geometry only, the next is compensated anyway (at
-#: the minimum budget): geometry frames measure nothing, and the device may have become faster
-#: (the first frames' costs, another program's load, a simpler picture). Each probe that is
-#: followed by geometry again doubles the wait, up to CATCH_UP_PROBE_MAX frames: on a device
-#: that cannot keep up, a probe is a late frame.
-CATCH_UP_PROBE, CATCH_UP_PROBE_MAX = 8, 128
+#: the minimum budget), a probe: geometry frames measure nothing, and the device may have become
+#: faster (another program's load gone, a simpler picture). Soon where a fresh frame's expected
+#: cost is within CATCH_UP_NEAR of the deadline (the estimate may be just over it, and such a
+#: probe is seldom late), rarely (CATCH_UP_PROBE_FAR) where it is far over it: on moving content
+#: a late frame is ~10 dB below a fresh one at 14 px/frame. Each compensated frame that ends
+#: late (after the frame after next has arrived) doubles the wait, up to CATCH_UP_PROBE_MAX;
+#: one in time sets it back.
+CATCH_UP_PROBE, CATCH_UP_PROBE_FAR, CATCH_UP_PROBE_MAX = 2, 32, 256
+CATCH_UP_NEAR = 1.15
 
 
 class _End:
@@ -325,25 +333,56 @@ class Player(SlidesMixin):
         and this one shown late: geometry only keeps up instead). Otherwise ``(False,
         iterations)``. A picture that did not change since the frame before is compensated
         whatever the time (dropping a copy of it shows nothing else, and once compensated its
-        repeats are cheap), and so is one after :data:`CATCH_UP_PROBE` geometry frames in a row
-        (doubling after each probe that did not fit), at the minimum budget (geometry frames
-        measure nothing)."""
+        repeats are cheap), and so is a probe after a run of geometry frames (see
+        :data:`CATCH_UP_PROBE`), at the minimum budget (geometry frames measure nothing)."""
         b = self.budget
         if (b is None or iterations is None or not self.catch_up or not self.live
                 or self.controls.mode != "full" or still):
             return False, iterations
-        rest = b.frame_seconds(0, repeat, worst=True)
+        rest = b.frame_seconds(0, repeat, deadline=True)
         if rest is None:
             return False, iterations
-        if self._geometry_run >= self._probe_every:   # a probe: measure the device again
-            self._probe_every = min(2 * self._probe_every, CATCH_UP_PROBE_MAX)
-            return False, b.minimum
-        left = CATCH_UP_SHARE * 2.0 * b.period - (time.perf_counter() - frame.t_read) - rest
+        deadline = CATCH_UP_SHARE * 2.0 * b.period
+        left = deadline - (time.perf_counter() - frame.t_read) - rest
         fit = int(left / b.per_iteration) if b.per_iteration > 0 else iterations
-        if fit < b.minimum:
-            return True, None
-        self._probe_every = CATCH_UP_PROBE               # it fits again
-        return False, min(iterations, fit)
+        if fit >= b.minimum:
+            return False, min(iterations, fit)
+        near = rest + b.minimum * b.per_iteration <= CATCH_UP_NEAR * deadline
+        wait = self._probe_every if near else max(CATCH_UP_PROBE_FAR, self._probe_every)
+        if self._geometry_run >= wait:                # a probe: measure the device again
+            return False, b.minimum
+        return True, None
+
+    def _judge_catch_up(self, frame: Frame) -> None:
+        """After a compensated frame: one that ended after the frame after next arrived doubles
+        the wait before the next probe, one in time sets it back (see :data:`CATCH_UP_PROBE`)."""
+        b = self.budget
+        if b is None or frame.t_read is None:
+            return
+        if time.perf_counter() - frame.t_read > 2.0 * b.period:
+            self._probe_every = min(2 * self._probe_every, CATCH_UP_PROBE_MAX)
+        else:
+            self._probe_every = CATCH_UP_PROBE
+
+    def _warm_up(self) -> None:
+        """Live playback with an adaptive budget: run the Compensator's video path once before
+        the first frame (:meth:`Compensator.warm_up`), so that its first-use costs do not make
+        the first moving frame late, and start the budget from that moving frame's cost (not
+        from a still picture's, which is a fraction of it)."""
+        warm_up = getattr(self.comp, "warm_up", None)
+        if self.budget is None or not self.live or warm_up is None:
+            return
+        t0 = time.perf_counter()
+        info = warm_up(iterations=self.budget.minimum)
+        if not info:
+            return
+        sec = info.get("seconds") or {}
+        its = int(info.get("iterations", 0) or 0)
+        if "total" in sec and "solve" in sec:
+            self.budget.update(sec["total"], sec["solve"], its, repeat=False)
+        self.stats.restart()                 # the frame rate counts from the first frame
+        log.debug("warmed up in %.0f ms (a moving frame: %.0f ms)", 1e3 * (time.perf_counter() - t0),
+                  1e3 * sec.get("total", float("nan")))
 
     def _show_geometry(self, frame: Frame, t_start: float) -> None:
         """``frame`` with geometry only, to keep up (see :meth:`_catch_up_iterations`)."""
@@ -360,7 +399,11 @@ class Player(SlidesMixin):
         sec = info.get("seconds") or {}
         its = int(info.get("iterations", 0) or 0)
         solve = float(sec.get("solve", 0.0)) if "solve" in sec else self.stats.stages["compensate"].last
-        self.budget.update(time.perf_counter() - t_start, solve, its, repeat=repeat)
+        # A new frame that started cold (a cut, the first frame) skipped the motion estimate and
+        # the warm start: its cost says little about the next moving frame's deadline.
+        moving_cost = repeat or info.get("start") not in ("cut", "cold")
+        self.budget.update(time.perf_counter() - t_start, solve, its, repeat=repeat,
+                           deadline=moving_cost)
 
     def _idle(self, seconds: float = 0.01) -> None:
         window = getattr(self.sink, "window", None)
@@ -439,6 +482,7 @@ class Player(SlidesMixin):
 
     def _run_sequence(self) -> None:
         st = self.stats
+        self._warm_up()
         st.stages["read"] = Series()  # created here: the decoder never resizes the dict
         q: queue.Queue = queue.Queue(maxsize=self.queue_size)
         thread = None
@@ -518,6 +562,8 @@ class Player(SlidesMixin):
                     out = self._render(frame.image, iterations=iters)
                     self._present(out, frame.index, frame.t_read, t0)
                     self._update_budget(t0, repeat)
+                    if not still:
+                        self._judge_catch_up(frame)
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)

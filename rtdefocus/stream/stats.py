@@ -139,6 +139,11 @@ class LoopStats:
             self.fps_now = self._fps_n / (now - self._fps_t)
             self._fps_t, self._fps_n = now, 0
 
+    def restart(self) -> None:
+        """Start the clock again (after work before the first frame, such as a warm-up)."""
+        self.t_start = self._fps_t = time.perf_counter()
+        self._fps_n = 0
+
     def finish(self) -> None:
         self.t_end = time.perf_counter()
 
