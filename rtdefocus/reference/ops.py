@@ -407,11 +407,9 @@ class NumpyOps:
         ``dst2`` the same of ``src2``)."""
         check_carry(src, fallback, dst, base_prev, base_new, src2, dst2)
         map_xy, valid = self._motion
-        out2 = (None if src2 is None
-                else carry_field(src2, map_xy, valid, fallback, base_prev, base_new, clamp))
         dst[...] = carry_field(src, map_xy, valid, fallback, base_prev, base_new, clamp)
-        if out2 is not None:
-            dst2[...] = out2
+        if src2 is not None:          # (check_carry: dst is none of what this one reads)
+            dst2[...] = carry_field(src2, map_xy, valid, fallback, base_prev, base_new, clamp)
 
     def decode(self, codes, lut, lo, scale, dst) -> None:
         lut = np.asarray(lut, dtype=np.float32)

@@ -357,7 +357,7 @@ class Player(SlidesMixin):
         """After a compensated frame: one that ended after the frame after next arrived doubles
         the wait before the next probe, one in time sets it back (see :data:`CATCH_UP_PROBE`)."""
         b = self.budget
-        if b is None or frame.t_read is None:
+        if b is None:
             return
         if time.perf_counter() - frame.t_read > 2.0 * b.period:
             self._probe_every = min(2 * self._probe_every, CATCH_UP_PROBE_MAX)
