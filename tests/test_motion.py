@@ -222,6 +222,22 @@ def _motion_case(seed=0, h=37, w=53, kind="noisy"):
     return f(), f(), f(), f(), map_xy, valid
 
 
+def _carry_backends(cl_runtime, shape, variant):
+    """NumPy and OpenCL solver ops for an (h, w) frame, for their carries (an identity blur)."""
+    from rtdefocus.cl.solve import ClSolveOps
+    from rtdefocus.reference.metric import Metric
+    from rtdefocus.reference.ops import NumpyOps
+
+    h, w = shape
+    psfs = np.zeros((1, 3, 3), np.float32)
+    psfs[0, 1, 1] = 1.0
+    idx, wts = np.zeros((h, w, 4), np.int32), np.zeros((h, w, 4), np.float32)
+    wts[..., 0] = 1.0
+    metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
+    return (NumpyOps(psfs, idx, wts, metric),
+            ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant))
+
+
 def test_carry_field_is_a_bilinear_remap():
     """The NumPy twin is cv2.remap (constant 0 border) up to cv2's 1/32 weight steps, and the
     cold fallback where the motion is invalid."""
@@ -248,20 +264,9 @@ def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still, kind, varia
     """``kernels/solver.cl`` carry against its twin: the warm start's fields moved on the device
     (both kernel shapes; a noisy map takes the CPU shape's gathers, a translation and a zoom its
     vector loads, and 53 columns its scalar tail)."""
-    from rtdefocus.cl.solve import ClSolveOps
-    from rtdefocus.reference.metric import Metric
-    from rtdefocus.reference.ops import NumpyOps
-
     src, bp, bn, fb, map_xy, valid = _motion_case(seed=1, kind=kind)
-    h, w = valid.shape
-    psfs = np.zeros((1, 3, 3), np.float32)
-    psfs[0, 1, 1] = 1.0
-    idx, wts = np.zeros((h, w, 4), np.int32), np.zeros((h, w, 4), np.float32)
-    wts[..., 0] = 1.0
-    metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
     outs = []
-    for ops in (NumpyOps(psfs, idx, wts, metric),
-                ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant)):
+    for ops in _carry_backends(cl_runtime, valid.shape, variant):
         ops.set_motion(None if still else map_xy, valid)
         arrs = [ops.new() for _ in range(5)]
         for a, host in zip(arrs[:4], (src, bp, bn, fb), strict=True):
@@ -280,22 +285,13 @@ def test_opencl_carry_matches_numpy(cl_runtime, bases, clamp, still, kind, varia
 def test_a_carry_of_two_fields_is_two_carries(cl_runtime, kind, still, variant):
     """``carry(..., src2=, dst2=)`` (the warm start's P and FISTA's P_prev in one pass) gives
     each field what a carry of its own gives, on both backends and both kernel shapes."""
-    from rtdefocus.cl.solve import ClSolveOps
-    from rtdefocus.reference.metric import Metric
-    from rtdefocus.reference.ops import NumpyOps, carry_field
+    from rtdefocus.reference.ops import carry_field
 
     src, bp, bn, fb, map_xy, valid = _motion_case(seed=2, kind=kind)
     src2 = _motion_case(seed=3, kind=kind)[0]
     motion = None if still else map_xy
     want = [carry_field(f, motion, valid, fb, bp, bn, clamp=True) for f in (src, src2)]
-    h, w = valid.shape
-    psfs = np.zeros((1, 3, 3), np.float32)
-    psfs[0, 1, 1] = 1.0
-    idx, wts = np.zeros((h, w, 4), np.int32), np.zeros((h, w, 4), np.float32)
-    wts[..., 0] = 1.0
-    metric = Metric.ycbcr((1.0, 0.1, 0.1, 0.0))
-    for ops in (NumpyOps(psfs, idx, wts, metric),
-                ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant)):
+    for ops in _carry_backends(cl_runtime, valid.shape, variant):
         ops.set_motion(motion, valid)
         bufs = [ops.new() for _ in range(7)]
         for b, host in zip(bufs, (src, src2, bp, bn, fb), strict=False):
