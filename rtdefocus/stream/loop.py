@@ -381,8 +381,8 @@ class Player(SlidesMixin):
         if "total" in sec and "solve" in sec:
             self.budget.update(sec["total"], sec["solve"], its, repeat=False)
         self.stats.restart()                 # the frame rate counts from the first frame
-        log.debug("warmed up in %.0f ms (a moving frame: %.0f ms)", 1e3 * (time.perf_counter() - t0),
-                  1e3 * sec.get("total", float("nan")))
+        log.info("warmed up in %.2f s (a moving frame: %.0f ms)", time.perf_counter() - t0,
+                 1e3 * sec.get("total", float("nan")))
 
     def _show_geometry(self, frame: Frame, t_start: float) -> None:
         """``frame`` with geometry only, to keep up (see :meth:`_catch_up_iterations`)."""
