@@ -193,9 +193,7 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
     from .stream import ArraySource, Player
     from .stream.sinks import Sink
 
-    comp = Compensator(calib, backend=backend)
-    comp.compensate(clip[0][1], iterations=1, warm_start=False)   # builds, first-use costs
-    comp.reset()
+    comp = Compensator(calib, backend=backend)     # (the live player warms it up itself)
 
     class WindowSink(Sink):
         kind, realtime = "window (recorded)", True
