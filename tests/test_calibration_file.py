@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 
 import numpy as np
 import pytest
@@ -317,6 +318,24 @@ def test_a_flipped_byte_anywhere_in_the_file_is_refused_or_harmless(good_raw, tm
             continue
         for name in ARRAYS:
             np.testing.assert_array_equal(getattr(back, name), data[name], err_msg=name)
+
+
+def test_an_array_header_cut_short_is_the_damaged_file_error(good_raw, tmp_path):
+    """An array whose .npy header no longer parses (a flipped byte inside the compressed
+    member reaches the header before the CRC is checked) is one CalibrationFileError, not
+    numpy's tokenizer error. (Found by the randomised flip test above on a fresh clone.)"""
+    path, _ = good_raw
+    bad = tmp_path / "bad.npz"
+    with zipfile.ZipFile(path) as src, zipfile.ZipFile(bad, "w") as dst:
+        for info in src.infolist():
+            body = src.read(info)
+            if info.filename == "H_cam_from_proj.npy":
+                start = body.index(b"{")
+                body = body[:start + 20] + b"\xfe" + b" " * (body.index(b"\n") - start - 21) + \
+                    body[body.index(b"\n"):]
+            dst.writestr(info.filename, body)
+    with pytest.raises(CalibrationFileError, match="damaged"):
+        Calibration.load(bad)
 
 
 # --------------------------------------------------------------------------- paths

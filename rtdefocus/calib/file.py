@@ -21,6 +21,7 @@ import json
 import logging
 import os
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -355,8 +356,10 @@ class Calibration:
             raise CalibrationFileError(f"{str(path)!r} is not a readable .npz ({exc}); "
                                        "recalibrate or restore a good copy") from exc
         except (zipfile.BadZipFile, zlib.error, OSError, EOFError, NotImplementedError,
-                RuntimeError, KeyError) as exc:
-            # A flipped bit fails the zip CRC, the inflater or the header (compression method).
+                RuntimeError, KeyError, SyntaxError, tokenize.TokenError) as exc:
+            # A flipped bit fails the zip CRC, the inflater or the header (compression method);
+            # one that reaches an array's .npy header before the CRC is checked can leave it
+            # unparseable (numpy's literal_eval raises TokenError / SyntaxError there).
             raise CalibrationFileError(f"{str(path)!r} is damaged, truncated or not an .npz "
                                        f"archive ({exc}); recalibrate or restore a good copy") \
                 from exc
