@@ -54,7 +54,13 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     RtDefocusError
         When the file is missing or not an image OpenCV can decode.
     """
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    # cv2.imread takes a narrow-character path, which fails on Windows for names outside the
+    # ANSI code page; reading the bytes in Python and decoding them works for any name.
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError:
+        data = None
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data is not None and data.size else None
     if img is None:
         raise RtDefocusError(f"cannot read image {str(path)!r}: missing file or unknown format "
                              "(PNG, JPEG, BMP, TIFF are supported)")
@@ -77,8 +83,20 @@ def write_image(path: str | os.PathLike, rgb: np.ndarray, *, atomic: bool = Fals
         os.close(fd)
         target = Path(tmp)
     try:
-        if not cv2.imwrite(str(target), arr):
-            raise RtDefocusError(f"cannot write {str(path)!r}: check the folder and the extension")
+        # Encoded in memory and written by Python (not cv2.imwrite): any file name works on
+        # every OS, as in read_image.
+        try:
+            ok, buf = cv2.imencode(path.suffix or ".png", arr)
+        except cv2.error:
+            ok = False
+        if not ok:
+            raise RtDefocusError(f"cannot write {str(path)!r}: unknown image extension "
+                                 f"{path.suffix!r} (use .png, .jpg, .bmp or .tif)")
+        try:
+            buf.tofile(str(target))
+        except OSError as exc:
+            raise RtDefocusError(f"cannot write {str(path)!r} ({exc.strerror}): check the folder "
+                                 "and its permissions") from exc
         if atomic:
             os.replace(target, path)
     finally:

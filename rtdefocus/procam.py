@@ -111,6 +111,9 @@ class HardwareProCam:
         Open the window full-screen (default) or windowed (previews, tests).
     capture_factory : callable, optional
         ``capture_factory(camera) -> cv2.VideoCapture``-like; default ``cv2.VideoCapture``.
+    camera_backend : str
+        OpenCV capture backend for a camera index: ``"auto"`` (default), ``"v4l2"``,
+        ``"dshow"``, ``"msmf"`` or ``"avfoundation"``.
 
     Attributes
     ----------
@@ -136,7 +139,7 @@ class HardwareProCam:
                  fps: float | None = None, lock: bool = False, exposure: float | None = None,
                  verify: bool = True, coarse_bits: int = 3, recaptures: int = 3,
                  projector_size: tuple[int, int] | None = None, window=None,
-                 fullscreen: bool = True, capture_factory=None):
+                 fullscreen: bool = True, capture_factory=None, camera_backend: str = "auto"):
         from .hardware.camera import CameraSettings, open_camera
 
         if (settle is not None and settle < 0) or flush < 0 or average < 1 or retries < 0 \
@@ -144,7 +147,7 @@ class HardwareProCam:
             raise InputError(f"need settle >= 0, flush >= 0, average >= 1, retries >= 0, "
                              f"recaptures >= 0, 1 <= coarse_bits <= 6; got {settle}, {flush}, "
                              f"{average}, {retries}, {recaptures}, {coarse_bits}")
-        self.camera, self.screen = camera, screen
+        self.camera, self.screen, self.camera_backend = camera, screen, camera_backend
         self.flush, self.average, self.retries = int(flush), int(average), int(retries)
         self.recaptures, self.verify = int(recaptures), bool(verify)
         self.settle = float(settle or 0.0)
@@ -156,7 +159,7 @@ class HardwareProCam:
         self._prev = None                         # (pattern, camera cells) of the last capture
         self.window = None
         self.cam = open_camera(camera, CameraSettings(size=camera_size, fourcc=fourcc, fps=fps,
-                                                      retries=retries),
+                                                      retries=retries, backend=camera_backend),
                                capture_factory=capture_factory)
         try:
             self.camera_size: tuple[int, int] = self.cam.size
@@ -310,6 +313,14 @@ class HardwareProCam:
         mask = lat.white - lat.black > lat.contrast / 3
         level = float(np.median(now[mask]))
         return level / max(self.white_level, 1.0) - 1.0
+
+    def setup_record(self, *, monitors: list[dict] | None = None, cameras=None) -> dict:
+        """What a calibration remembers of this hardware: ``{"monitor": ..., "camera": ...}``
+        (:mod:`rtdefocus.hardware.remembered`); ``monitors`` and ``cameras`` default to the
+        connected ones."""
+        from .hardware.remembered import hardware_record
+
+        return hardware_record(self, monitors=monitors, cameras=cameras)
 
     def report(self) -> dict:
         """What the start-up found: negotiated camera mode, controls, latency, settle, pixel ratio."""

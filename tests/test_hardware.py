@@ -329,7 +329,7 @@ def test_cli_calibrate_passes_the_camera_options(monkeypatch):
                   "--average", "4", "--lock", "--exposure", "33.3"])
     assert seen == {"camera": 2, "screen": 1, "camera_size": (1920, 1080), "fourcc": "MJPG",
                     "fps": 30.0, "settle": 0.4, "flush": 2, "average": 4, "lock": True,
-                    "exposure": pytest.approx(0.0333)}
+                    "exposure": pytest.approx(0.0333), "camera_backend": "auto"}
     with pytest.raises(SystemExit) as exc:
         cli.main(["calibrate", "--camera", "0", "-o", "x.npz", "--fourcc", "MJPEG"])
     assert exc.value.code == 2

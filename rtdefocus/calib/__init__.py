@@ -122,6 +122,9 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         timings[name] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
+    if hasattr(procam, "setup_record"):
+        # Real hardware: the monitor and camera, so later commands find them again.
+        calib.meta["hardware"] = procam.setup_record()
     warning = view_warning(cap)
     if warning:
         log.warning("calibration done, but %s", warning)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import threading
 import warnings
 from dataclasses import dataclass, field
@@ -24,10 +25,21 @@ from ..resources import kernel_source, kernels_dir
 
 log = logging.getLogger(__name__)
 
-INSTALL_HINT = (
-    "Install an OpenCL driver: on Debian/Ubuntu `sudo apt-get install pocl-opencl-icd` (CPU), "
-    "or your GPU vendor's OpenCL ICD; `make test` / `make demo` install PoCL themselves when root."
-)
+def install_hint(platform: str | None = None) -> str:
+    """Which OpenCL driver to install on ``platform`` (``sys.platform``: linux, darwin, win32)."""
+    platform = platform or sys.platform
+    if platform.startswith("win"):
+        return ("Install an OpenCL driver: your GPU's graphics driver from NVIDIA, AMD or Intel "
+                "carries one; with no GPU, Intel's 'CPU Runtime for OpenCL Applications'.")
+    if platform == "darwin":
+        return ("Install an OpenCL driver: `pip install pocl-binary-distribution` (a CPU driver "
+                "PyOpenCL finds by itself).")
+    return ("Install an OpenCL driver: `pip install pocl-binary-distribution` (CPU, no root), or "
+            "`sudo apt-get install pocl-opencl-icd` (Debian/Ubuntu), or your GPU vendor's OpenCL "
+            "driver (NVIDIA, AMD ROCm, Intel compute-runtime).")
+
+
+INSTALL_HINT = install_hint()
 
 
 def _cl():

@@ -18,7 +18,7 @@ import sys
 from .. import __version__
 from ..errors import RtDefocusError
 from .common import parse_size, read_image, write_image
-from .setup import _add_calibrate, _add_check, _add_info, _add_simulate
+from .setup import _add_calibrate, _add_cameras, _add_check, _add_info, _add_simulate
 from .show import _add_play, _add_warp
 from .study import _add_demo, _add_eval, _eval_options
 
@@ -28,6 +28,7 @@ __all__ = ["main", "build_parser", "COMMANDS", "parse_size", "read_image", "writ
 EPILOG = """\
 examples:
   rtdefocus info                                   list OpenCL devices and the GL renderer
+  rtdefocus cameras                                list cameras: index, name, backend
   rtdefocus simulate --scene cubicle --pattern checker -o out.png
   rtdefocus calibrate --sim cubicle -o setup.npz   calibrate the built-in virtual cubicle
   rtdefocus check --camera 0 --screen 1            pre-flight of a real camera and projector
@@ -39,8 +40,8 @@ examples:
 
 
 # --------------------------------------------------------------------------- main
-COMMANDS = [_add_info, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_check, _add_demo,
-            _add_eval]
+COMMANDS = [_add_info, _add_cameras, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_check,
+            _add_demo, _add_eval]
 
 
 def build_parser() -> argparse.ArgumentParser:

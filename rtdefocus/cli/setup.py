@@ -68,6 +68,31 @@ def _print_monitors() -> None:
         print(f"      modes: {modes}{more}")
 
 
+# --------------------------------------------------------------------------- cameras
+def _add_cameras(sub):
+    p = sub.add_parser("cameras", help="list the connected cameras: index, name and capture backend",
+                       epilog="example:\n  rtdefocus cameras\n  rtdefocus aim --camera 0 "
+                       "--camera-backend v4l2 --screen 1",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--probe", type=int, default=6, metavar="N", help="where the platform lists no "
+                   "names, open indices 0..N-1 to find cameras (default 6)")
+    p.set_defaults(func=cmd_cameras)
+
+
+def cmd_cameras(args) -> int:
+    from ..hardware.cameras import list_cameras, probe_indices
+
+    cameras = list_cameras(probe=lambda: probe_indices(args.probe))
+    if not cameras:
+        print("Cameras: none found. Plug the webcam in (and close other programs using it); on "
+              "Linux check that your user may open /dev/video*")
+        return 1
+    print("Cameras (--camera N --camera-backend B):")
+    for c in cameras:
+        print(f"   {c.describe()}")
+    return 0
+
+
 # --------------------------------------------------------------------------- simulate
 def _add_simulate(sub):
     p = sub.add_parser("simulate", help="show a pattern or image on the virtual set-up, write "
@@ -131,7 +156,8 @@ def _add_calibrate(sub):
                      "flat, tilted, offcenter, u_cubicle or corner_ceiling")
     src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
                      "go full-screen to --screen")
-    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    p.add_argument("--screen", type=int, default=None, help="projector's monitor index (`rtdefocus "
+                   "info` lists them; default: the second of two monitors, else 0)")
     _add_camera_options(p)
     p.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
     from ..calib import STAGES
@@ -173,6 +199,11 @@ def _add_camera_options(p, capture: bool = True) -> None:
                    help="camera resolution to ask for, e.g. 1920x1080 (default: the driver's)")
     p.add_argument("--fourcc", type=_fourcc, metavar="CODE", help="camera pixel format, set "
                    "before the size: MJPG (fast at 720p/1080p) or YUYV")
+    from ..hardware.camera import CAMERA_BACKENDS
+
+    p.add_argument("--camera-backend", choices=tuple(CAMERA_BACKENDS), default=None,
+                   help="OpenCV capture backend: v4l2 (Linux), dshow or msmf (Windows), "
+                   "avfoundation (macOS); default auto, or the one the calibration remembers")
     if not capture:
         p.add_argument("--camera-fps", type=float, metavar="FPS", help="camera frame rate to ask for")
         return
@@ -183,8 +214,8 @@ def _add_camera_options(p, capture: bool = True) -> None:
                    help="camera frames discarded at least after each pattern (default 1)")
     p.add_argument("--average", type=int, default=2, metavar="N",
                    help="camera frames averaged per pattern (default 2)")
-    p.add_argument("--lock", action="store_true", help="lock exposure, white balance and focus, "
-                   "sharpening off (read back; what could not be set is reported)")
+    p.add_argument("--lock", action="store_true", default=None, help="lock exposure, white "
+                   "balance and focus, sharpening off (read back; what could not be set is reported)")
     p.add_argument("--exposure", type=float, metavar="MS", help="exposure for --lock in "
                    "milliseconds, rounded to whole projector frame periods (default: auto's choice)")
 
@@ -194,7 +225,33 @@ def _hardware_procam(hw, args):
     camera = int(args.camera) if str(args.camera).isdigit() else args.camera
     return hw(camera=camera, screen=args.screen, camera_size=args.camera_size, fourcc=args.fourcc,
               fps=args.fps, settle=args.settle, flush=args.flush, average=args.average,
-              lock=args.lock, exposure=args.exposure / 1e3 if args.exposure else None)
+              lock=bool(args.lock), exposure=args.exposure / 1e3 if args.exposure else None,
+              camera_backend=args.camera_backend or "auto")
+
+
+def _remembered_hardware(args, calib=None, *, monitors=None, cameras=None) -> None:
+    """Fill the camera and monitor options the command line left out from what ``calib``
+    remembers (:mod:`rtdefocus.hardware.remembered`), then check the monitor is connected."""
+    from ..hardware import remembered as rem
+    from ..hardware.cameras import enumerate_named
+
+    rec = rem.remembered(calib)
+    cam_rec = rec.get("camera") or {}
+    if args.camera is None and cam_rec.get("name") and cameras is None:
+        cameras = enumerate_named()
+    camera, backend = rem.resolve_camera(args.camera, cam_rec, cameras)
+    if args.camera is None:
+        args.camera = camera
+        if args.camera_backend is None:
+            args.camera_backend = backend
+        for key, value in rem.camera_options(cam_rec).items():
+            if getattr(args, key, None) in (None, False) and value:
+                setattr(args, key, value)
+    if monitors is None:
+        monitors = rem.connected_monitors()
+    if args.screen is None and not rec.get("monitor") and monitors:
+        args.screen = rem.default_screen(monitors)
+    args.screen = rem.resolve_screen(args.screen, monitors or [], rec.get("monitor"))
 
 
 def _report_hardware(procam, after: bool = False) -> None:
@@ -237,6 +294,7 @@ def cmd_calibrate(args) -> int:
         if hw is None:
             raise RtDefocusError("hardware capture needs HardwareProCam (not yet available in this "
                                  "version); use --sim PRESET for the built-in virtual set-up")
+        _remembered_hardware(args)
         procam = _hardware_procam(hw, args)
         source = f"camera {args.camera!r}, projector on screen {args.screen}"
     t0 = time.perf_counter()
@@ -271,9 +329,11 @@ CHECK_EPILOG = """\
 examples:
   rtdefocus check --camera 0 --screen 1                 the webcam and the second monitor
   rtdefocus check --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock
+  rtdefocus check setup.npz                             the camera and monitor setup.npz remembers
 shows white and black on the projector and reports, in seconds: the camera's negotiated mode,
 the monitor, the projector-to-camera latency, the camera-to-projector pixel ratio, white
-clipping, the black level, the contrast and the camera controls. Exit code 1 on a FAIL line.
+clipping, the black level, the contrast and the camera controls; then the complete calibrate
+command for what was checked. Exit code 1 on a FAIL line.
 """
 
 
@@ -281,8 +341,12 @@ def _add_check(sub):
     p = sub.add_parser("check", help="pre-flight of a real set-up before calibrating: camera mode, "
                        "monitor, latency, clipping, exposure", epilog=CHECK_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--camera", required=True, metavar="INDEX", help="camera index or stream URL")
-    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    p.add_argument("calibration", nargs="?", help="a calibration file: its camera and monitor are "
+                   "used where --camera / --screen are not given")
+    p.add_argument("--camera", metavar="INDEX", help="camera index or stream URL (`rtdefocus "
+                   "cameras` lists them)")
+    p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
+                   "the calibration's monitor, else the second of two, else 0)")
     _add_camera_options(p)
     p.set_defaults(func=cmd_check)
 
@@ -291,10 +355,30 @@ def cmd_check(args) -> int:
     from .. import procam as procam_mod
     from ..hardware.preflight import FAIL, format_report, preflight
 
+    calib = None
+    if args.calibration:
+        from ..calib.file import Calibration
+
+        calib = Calibration.load(args.calibration)
+    _remembered_hardware(args, calib)
     with _hardware_procam(procam_mod.HardwareProCam, args) as procam:
         items = preflight(procam)
+        command = _calibrate_command(args, procam)
     print(format_report(items))
     failed = [i.name for i in items if i.verdict == FAIL]
-    print("fix the FAIL lines before calibrating" if failed else
-          f"ready: rtdefocus calibrate --camera {args.camera} --screen {args.screen} -o setup.npz")
+    print("fix the FAIL lines before calibrating" if failed else f"ready: {command}")
     return 1 if failed else 0
+
+
+def _calibrate_command(args, procam) -> str:
+    """The calibrate command for the mode that was checked: the size and format the camera
+    delivered, and its controls locked (at the exposure that was locked, when one was)."""
+    from ..hardware.remembered import calibrate_command
+
+    n = procam.cam.negotiated or {}
+    exposure = (procam.controls.exposure_s * 1e3 if procam.controls is not None
+                and procam.controls.exposure_s else args.exposure)
+    return calibrate_command(camera=args.camera, screen=args.screen,
+                             camera_size=procam.camera_size, fourcc=n.get("fourcc") or args.fourcc,
+                             lock=True, exposure_ms=round(exposure, 3) if exposure else None,
+                             camera_backend=args.camera_backend)

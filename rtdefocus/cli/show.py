@@ -96,7 +96,8 @@ def _add_play(sub):
     p.add_argument("source", help="image | folder | video | camera:INDEX | camera:URL | URL")
     p.add_argument("--out", metavar="FILE|DIR", help="video file (.mp4, .avi), image (.png), folder "
                    "(numbered PNGs) or 'null'; default: full-screen window on --screen")
-    p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
+    p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
+                   "the monitor the calibration remembers, else the second of two, else 0)")
     p.add_argument("--windowed", type=parse_size, metavar="WxH",
                    help="a plain window of this size instead of full-screen (preview)")
     p.add_argument("--fps", type=float, help="target frame rate (default: the source's, else 30)")
@@ -116,7 +117,8 @@ def _add_play(sub):
                    help="solver iterations per frame (default: adaptive in the window, the "
                    "Compensator's budget for files, until converged for slides)")
     p.add_argument("--stats", metavar="FILE", help="also write the run's statistics as JSON")
-    p.add_argument("--cache", metavar="DIR", help="slide cache folder (default ~/.cache/rtdefocus)")
+    p.add_argument("--cache", metavar="DIR", help="slide cache folder (default: "
+                   "$RTDEFOCUS_CACHE, else the user cache folder, e.g. ~/.cache/rtdefocus)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
     _add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
@@ -124,6 +126,20 @@ def _add_play(sub):
                    help="decode, compensate and encode one after another on one thread (for "
                    "comparison; default: decode and file encode on threads of their own)")
     p.set_defaults(func=cmd_play)
+
+
+def _screen(screen: int | None, calib) -> int:
+    """The projector's monitor: ``--screen``, else the one the calibration remembers (which
+    must be connected), else the second of two monitors, else 0."""
+    from ..hardware import remembered as rem
+
+    monitors = rem.connected_monitors()
+    if monitors is None:          # no display to ask: the window says what it finds
+        return 0 if screen is None else screen
+    record = rem.remembered(calib).get("monitor")
+    if screen is None and not record:
+        screen = rem.default_screen(monitors)
+    return rem.resolve_screen(screen, monitors, record)
 
 
 def cmd_play(args) -> int:
@@ -136,10 +152,12 @@ def cmd_play(args) -> int:
     comp = Compensator(calib, backend=args.backend, method=args.method,
                        psf_energy=args.psf_energy, **flat,
                        precondition=None if args.precondition == "none" else args.precondition)
+    screen = _screen(args.screen, calib) if args.out is None else (args.screen or 0)
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
-                     camera_fps=args.camera_fps) as source:
-        with open_sink(args.out, fps=args.fps or source.fps, screen=args.screen,
+                     camera_fps=args.camera_fps,
+                     camera_backend=args.camera_backend or "auto") as source:
+        with open_sink(args.out, fps=args.fps or source.fps, screen=screen,
                        fullscreen=args.windowed is None, window_size=args.windowed,
                        expect_size=calib.projector_size) as sink:
             progress = None

@@ -500,6 +500,7 @@ def _resolve_backend(backend: str) -> str:
     if backend == "opencl":
         raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
     if not _warned_no_opencl:
-        log.warning("no OpenCL device; compensating with the (slow) NumPy backend: %s", why)
+        hint = "" if cl_runtime.INSTALL_HINT in why else " " + cl_runtime.INSTALL_HINT
+        log.warning("no OpenCL device; compensating with the (slow) NumPy backend: %s%s", why, hint)
         _warned_no_opencl = True
     return "numpy"

@@ -49,12 +49,16 @@ class CameraSettings:
         Frame rate to request (``--fps``).
     retries : int
         Extra attempts for a failed read; half way the stream is re-opened.
+    backend : str
+        OpenCV capture backend for a camera index (``--camera-backend``): one of
+        :data:`CAMERA_BACKENDS`; ``"auto"`` lets OpenCV choose. Streams and files ignore it.
     """
 
     size: tuple[int, int] | None = None
     fourcc: str | None = None
     fps: float | None = None
     retries: int = 3
+    backend: str = "auto"
 
     def __post_init__(self):
         if self.fourcc is not None and len(self.fourcc) != 4:
@@ -65,6 +69,24 @@ class CameraSettings:
             raise InputError(f"camera fps must be > 0; got {self.fps}")
         if self.retries < 0:
             raise InputError(f"retries must be >= 0; got {self.retries}")
+        if self.backend not in CAMERA_BACKENDS:
+            raise InputError(f"camera backend must be one of {', '.join(CAMERA_BACKENDS)}; got "
+                             f"{self.backend!r}")
+
+
+#: ``--camera-backend`` names -> the ``cv2.CAP_*`` constant's name. v4l2 is Linux's,
+#: dshow and msmf Windows', avfoundation macOS's; auto lets OpenCV pick.
+CAMERA_BACKENDS = {"auto": "CAP_ANY", "v4l2": "CAP_V4L2", "dshow": "CAP_DSHOW",
+                   "msmf": "CAP_MSMF", "avfoundation": "CAP_AVFOUNDATION"}
+
+
+def backend_code(name: str) -> int:
+    """``"dshow"`` -> ``cv2.CAP_DSHOW`` (see :data:`CAMERA_BACKENDS`)."""
+    import cv2
+
+    if name not in CAMERA_BACKENDS:
+        raise InputError(f"camera backend must be one of {', '.join(CAMERA_BACKENDS)}; got {name!r}")
+    return int(getattr(cv2, CAMERA_BACKENDS[name]))
 
 
 def fourcc_code(text: str) -> int:
@@ -83,10 +105,19 @@ def fourcc_text(code: float) -> str | None:
     return text if text.isprintable() and text.strip() else None
 
 
-def _default_factory(source: int | str):
+def default_factory(backend: str = "auto") -> CaptureFactory:
+    """``cv2.VideoCapture`` opening a camera index through ``backend`` (streams and files
+    through OpenCV's own choice)."""
     import cv2
 
-    return cv2.VideoCapture(source)
+    api = backend_code(backend)
+
+    def factory(source: int | str):
+        if isinstance(source, int) and api != cv2.CAP_ANY:
+            return cv2.VideoCapture(source, api)
+        return cv2.VideoCapture(source)
+
+    return factory
 
 
 def _normalise(source: int | str) -> int | str:
@@ -121,7 +152,7 @@ class Camera:
         self.source = _normalise(source)
         self.settings = settings or CameraSettings()
         self.what = what
-        self._factory = capture_factory or _default_factory
+        self._factory = capture_factory or default_factory(self.settings.backend)
         self.live = not (isinstance(self.source, str) and Path(self.source).is_file())
         self.restarts = 0
         self.on_restart: Callable[[Camera], None] | None = None
@@ -137,8 +168,8 @@ class Camera:
         cap = self._factory(self.source)
         if cap is None or not cap.isOpened():
             hint = ("check that it is plugged in and that no other program (a video call, a "
-                    "preview tool, another rtdefocus) is using it; `v4l2-ctl --list-devices` (Linux) "
-                    "or `rtdefocus check --camera N` finds the index"
+                    "preview tool, another rtdefocus) is using it; `rtdefocus cameras` lists the "
+                    "cameras with their index and backend (--camera-backend)"
                     if isinstance(self.source, int) else
                     "check the URL or path (it should play in a media player such as `ffplay URL`)")
             if cap is not None:
@@ -326,7 +357,8 @@ def open_camera(source: int | str, settings: CameraSettings | None = None, *,
     """Open a camera (index), stream (URL) or video file, read one frame to learn its real mode,
     and return the :class:`Camera`.
 
-    ``overrides`` (``size=``, ``fourcc=``, ``fps=``, ``retries=``) replace fields of ``settings``.
+    ``overrides`` (``size=``, ``fourcc=``, ``fps=``, ``retries=``, ``backend=``) replace fields
+    of ``settings``.
 
     Raises
     ------

@@ -6,8 +6,10 @@ calibration, its sizes and its meta data), the slide's bytes and shape, and the 
 (method, iterations, rtdefocus version). Change any of them and the old entry is simply not
 found; nothing is ever served stale. Entries are lossless PNGs written atomically.
 
-Location: ``--cache DIR``, else ``$RTDEFOCUS_CACHE``, else ``$XDG_CACHE_HOME/rtdefocus``, else
-``~/.cache/rtdefocus``; slides go to ``<root>/slides/<calibration fingerprint>/``.
+Location: ``--cache DIR``, else ``$RTDEFOCUS_CACHE``, else the platform's user cache folder
+(``platformdirs``: ``$XDG_CACHE_HOME/rtdefocus`` or ``~/.cache/rtdefocus`` on Linux,
+``~/Library/Caches/rtdefocus`` on macOS, ``%LOCALAPPDATA%\\rtdefocus\\Cache`` on Windows);
+slides go to ``<root>/slides/<calibration fingerprint>/``.
 """
 
 from __future__ import annotations
@@ -29,11 +31,12 @@ _VOLATILE_META = frozenset({"loaded_from"})
 
 
 def default_cache_dir() -> Path:
-    """``$RTDEFOCUS_CACHE``, else ``$XDG_CACHE_HOME/rtdefocus``, else ``~/.cache/rtdefocus``."""
+    """``$RTDEFOCUS_CACHE``, else the platform's user cache folder for rtdefocus (module docstring)."""
     if os.environ.get("RTDEFOCUS_CACHE"):
         return Path(os.environ["RTDEFOCUS_CACHE"]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "rtdefocus"
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("rtdefocus", appauthor=False))
 
 
 def _update_array(h, name: str, arr) -> None:

@@ -212,6 +212,7 @@ class CameraSource(Source):
     retries : extra attempts per failed read.
     fourcc : pixel format to ask for, e.g. ``"MJPG"``.
     fps : frame rate to ask for.
+    backend : OpenCV capture backend for an index (``"auto"``, ``"v4l2"``, ``"dshow"``, ...).
     capture_factory : ``capture_factory(camera) -> cv2.VideoCapture``-like (tests).
     """
 
@@ -219,13 +220,14 @@ class CameraSource(Source):
     live = True
 
     def __init__(self, camera: int | str = 0, size: tuple[int, int] | None = None, retries: int = 5,
-                 *, fourcc: str | None = None, fps: float | None = None, capture_factory=None):
+                 *, fourcc: str | None = None, fps: float | None = None, backend: str = "auto",
+                 capture_factory=None):
         from ..hardware.camera import CameraSettings, open_camera
 
         self.camera = camera
         self.retries = retries
         self._cam = open_camera(camera, CameraSettings(size=size, fourcc=fourcc, fps=fps,
-                                                       retries=retries),
+                                                       retries=retries, backend=backend),
                                 capture_factory=capture_factory)
         self.fps = self._cam.fps
         self._index = 0
@@ -303,7 +305,8 @@ def parse_camera(spec: str) -> int | str | None:
 
 
 def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None,
-                fourcc: str | None = None, camera_fps: float | None = None) -> Source:
+                fourcc: str | None = None, camera_fps: float | None = None,
+                camera_backend: str = "auto") -> Source:
     """The source a command-line SOURCE names.
 
     ``camera:N`` or ``camera:URL`` or a stream URL (rtsp://, http://, ...) -> :class:`CameraSource`;
@@ -312,7 +315,8 @@ def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None,
     text = str(spec)
     camera = parse_camera(text)
     if camera is not None:
-        return CameraSource(camera, size=camera_size, fourcc=fourcc, fps=camera_fps)
+        return CameraSource(camera, size=camera_size, fourcc=fourcc, fps=camera_fps,
+                            backend=camera_backend)
     path = Path(text).expanduser()
     if path.is_dir():
         return SlidesSource(path)
