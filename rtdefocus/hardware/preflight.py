@@ -74,7 +74,8 @@ def preflight(procam) -> list[Item]:
     items.append(Item("contrast", f"white − black {contrast:.0f} of 255",
                       FAIL if contrast < 30 else WARN if contrast < 80 else OK,
                       "too dim: raise the exposure, darken the room, check the lens cap and that "
-                      "--screen is the projector" if contrast < 80 else ""))
+                      "--screen is the projector and --camera the camera that films it (`rtdefocus "
+                      "aim` shows its view live)" if contrast < 80 else ""))
     if procam.controls is not None:
         c = procam.controls
         items.append(Item("camera controls", c.summary(), OK if c.ok else WARN,

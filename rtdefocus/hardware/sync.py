@@ -88,8 +88,9 @@ def measure_latency(camera, show: Callable[[np.ndarray], float], projector_size:
         raise CaptureError(f"the camera does not see the projector: its picture stayed at mean "
                            f"level {b_mean:.0f} for {timeout:.0f} s after the screen turned from "
                            "black to white. Aim the camera at the projected area, check --screen "
-                           "(the patterns go to that monitor), the lens cap and the exposure "
-                           "(`rtdefocus check` shows what the camera sees)")
+                           "(the patterns go to that monitor), --camera (`rtdefocus cameras` lists "
+                           "them), the lens cap and the exposure: `rtdefocus aim --camera N "
+                           "--screen M` shows what the camera sees, live")
     # The first frame whose level is past half way: the rise itself can span two frames.
     half = b_mean + 0.5 * (float(last.mean()) - b_mean)
     seconds = next(t for t, v in trace if v >= half)
