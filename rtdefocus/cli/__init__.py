@@ -18,7 +18,7 @@ import sys
 from .. import __version__
 from ..errors import RtDefocusError
 from .common import parse_size, read_image, write_image
-from .setup import _add_calibrate, _add_cameras, _add_check, _add_info, _add_simulate
+from .setup import _add_aim, _add_calibrate, _add_cameras, _add_check, _add_info, _add_simulate
 from .show import _add_play, _add_warp
 from .study import _add_demo, _add_eval, _eval_options
 
@@ -31,6 +31,7 @@ examples:
   rtdefocus cameras                                list cameras: index, name, backend
   rtdefocus simulate --scene cubicle --pattern checker -o out.png
   rtdefocus calibrate --sim cubicle -o setup.npz   calibrate the built-in virtual cubicle
+  rtdefocus aim --camera 0 --screen 1              aim the camera, focus the projector (preview)
   rtdefocus check --camera 0 --screen 1            pre-flight of a real camera and projector
   rtdefocus warp setup.npz photo.jpg -o warped.png
   rtdefocus demo -o demo_out                       the whole story on the virtual cubicle
@@ -40,8 +41,8 @@ examples:
 
 
 # --------------------------------------------------------------------------- main
-COMMANDS = [_add_info, _add_cameras, _add_simulate, _add_calibrate, _add_warp, _add_play, _add_check,
-            _add_demo, _add_eval]
+COMMANDS = [_add_info, _add_cameras, _add_aim, _add_simulate, _add_calibrate, _add_warp, _add_play,
+            _add_check, _add_demo, _add_eval]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -324,6 +324,74 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- aim
+AIM_EPILOG = """\
+examples:
+  rtdefocus aim --camera 0 --screen 1        the webcam and the projector on the second monitor
+  rtdefocus aim setup.npz                    the camera and monitor setup.npz remembers
+The projector holds a pattern (w white, g grid, c checker; r finds the projected area again);
+the preview on the laptop shows the camera's picture with the projected area outlined in green,
+clipped pixels in red and, on the checker, a focus meter per wall: the edge blur in projector
+pixels. Aim the camera until the outline holds the whole picture and nothing is red, then turn
+the projector's focus ring until both walls read low and about equal. q or Esc leaves.
+"""
+
+
+def _add_aim(sub):
+    p = sub.add_parser("aim", help="live camera preview with the projected area, clipping and a "
+                       "focus meter per wall, while the projector holds a pattern",
+                       epilog=AIM_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("calibration", nargs="?", help="a calibration file: its camera and monitor are "
+                   "used where --camera / --screen are not given (and its walls for the meters)")
+    p.add_argument("--camera", metavar="INDEX", help="camera index or stream URL (`rtdefocus "
+                   "cameras` lists them)")
+    p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
+                   "the calibration's monitor, else the second of two, else 0)")
+    _add_camera_options(p, capture=False)
+    p.add_argument("--pattern", choices=("white", "grid", "checker"), default="checker",
+                   help="pattern to start with (default checker)")
+    p.add_argument("--preview-size", type=parse_size, default=(960, 540), metavar="WxH",
+                   help="size of the preview window on the laptop (default 960x540)")
+    p.add_argument("--frames", type=int, default=None, metavar="N",
+                   help="stop after N camera frames (scripted checks; default: until q)")
+    p.set_defaults(func=cmd_aim)
+
+
+def cmd_aim(args) -> int:
+    from ..gl.window import ProjectorWindow
+    from ..hardware.aim_loop import run_aim
+    from ..hardware.camera import CameraSettings, open_camera
+
+    calib = None
+    if args.calibration:
+        from ..calib.file import Calibration
+
+        calib = Calibration.load(args.calibration)
+    _remembered_hardware(args, calib)
+    camera = int(args.camera) if str(args.camera).isdigit() else args.camera
+    settings = CameraSettings(size=args.camera_size, fourcc=args.fourcc, fps=args.camera_fps,
+                              backend=args.camera_backend or "auto")
+    with open_camera(camera, settings) as cam, \
+            ProjectorWindow(args.screen, fullscreen=True) as projector, \
+            ProjectorWindow(fullscreen=False, size=args.preview_size, title="rtdefocus aim",
+                            vsync=False) as preview:
+        print(f"{cam.describe()}; projector {projector.size[0]}x{projector.size[1]} on screen "
+              f"{args.screen}. Keys: w white, g grid, c checker, r find the area again, q quit")
+        view = run_aim(cam, projector, preview, calib=calib, pattern=args.pattern,
+                       max_frames=args.frames)
+    if view is not None and view.area is None:
+        raise RtDefocusError("the camera does not see the projection: aim it at the projected "
+                             "area, and check --screen and --camera (`rtdefocus cameras`)")
+    if view is not None:
+        meters = ", ".join(f"{r.name} {x.blur_projector_px:.1f} px" for r, x in
+                           zip(view.regions, view.readings, strict=True)
+                           if x.blur_projector_px is not None)
+        clipped = float(view.clipped[view.area.mask].mean())
+        print(f"projected area {view.area.fraction:.0%} of the camera picture, clipped "
+              f"{clipped:.1%}" + (f", edge blur {meters}" if meters else ""))
+    return 0
+
+
 # --------------------------------------------------------------------------- check
 CHECK_EPILOG = """\
 examples:
