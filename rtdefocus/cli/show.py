@@ -122,6 +122,9 @@ def _add_play(sub):
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
     _add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
+    p.add_argument("--preview", nargs="?", const=(480, 330), type=parse_size, metavar="WxH",
+                   help="an operator's window on the laptop: what the projector shows, with fps, "
+                   "iterations and frames shown with geometry only (default size 480x330)")
     p.add_argument("--sequential", action="store_true",
                    help="decode, compensate and encode one after another on one thread (for "
                    "comparison; default: decode and file encode on threads of their own)")
@@ -140,6 +143,22 @@ def _screen(screen: int | None, calib) -> int:
     if screen is None and not record:
         screen = rem.default_screen(monitors)
     return rem.resolve_screen(screen, monitors, record)
+
+
+def _with_preview(sink, size):
+    """``sink`` with the operator's preview window beside it (``--preview``), or as it is."""
+    if size is None:
+        return sink
+    from ..errors import InputError
+
+    if sink.kind != "window":
+        raise InputError("--preview shows the projector's window on the laptop: leave out --out, "
+                         "or leave out --preview when writing files")
+    from ..gl.window import ProjectorWindow
+    from ..stream.preview import PreviewSink
+
+    window = ProjectorWindow(fullscreen=False, size=size, title="rtdefocus preview", vsync=False)
+    return PreviewSink(sink, window)
 
 
 def cmd_play(args) -> int:
@@ -171,9 +190,12 @@ def cmd_play(args) -> int:
                         bar.total = total
                     bar.update(done - bar.n)
             cache = None if args.no_cache else (args.cache or True)
-            player = Player(comp, source, sink, fps=args.fps, iterations=args.iterations,
+            shown = _with_preview(sink, args.preview)
+            player = Player(comp, source, shown, fps=args.fps, iterations=args.iterations,
                             cache=cache, progress=progress, overlay=args.overlay,
                             threads=not args.sequential)
+            if shown is not sink:
+                shown.attach(player)
             try:
                 player.run()
             except KeyboardInterrupt:  # Ctrl+C ends a live show; the summary still counts
@@ -181,6 +203,8 @@ def cmd_play(args) -> int:
             finally:
                 if bar is not None:
                     bar.close()
+                if shown is not sink:
+                    shown.close()
     stats = player.stats
     print(stats.summary())
     if args.stats:
