@@ -168,26 +168,38 @@ def focus_reading(frame: np.ndarray, region: np.ndarray, *, cell_camera_px: floa
     """Edge blur σ of a checker (or grid) seen by the camera inside ``region`` (module
     docstring). ``cell_camera_px`` is the pattern's cell in camera pixels (sets the window of
     the local contrast); ``projector_per_camera`` converts σ to projector pixels."""
+    return focus_readings(frame, [region], cell_camera_px=cell_camera_px,
+                          projector_per_camera=projector_per_camera, min_edges=min_edges)[0]
+
+
+def focus_readings(frame: np.ndarray, regions: list[np.ndarray], *, cell_camera_px: float,
+                   projector_per_camera: float = 1.0, min_edges: int = 30) -> list[FocusReading]:
+    """:func:`focus_reading` for several regions of one frame (the edge fields computed once)."""
     g = _gray(frame).astype(np.float32)
     half = max(2, int(round(cell_camera_px)))
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * half + 1, 2 * half + 1))
     contrast = cv2.dilate(g, kernel) - cv2.erode(g, kernel)
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    slope = np.hypot(gx, gy)
-    # Inside the region, away from its border (the lit area's own edge is not the pattern's).
-    inner = cv2.erode(region.astype(np.uint8), kernel).astype(bool)
-    top = float(np.percentile(contrast[inner], 90)) if inner.any() else 0.0
-    use = inner & (contrast > 0.5 * top) & (top > 10.0)
-    if int(use.sum()) < min_edges:
-        return FocusReading(None, None, int(use.sum()))
-    ratio = slope[use] / contrast[use]
-    # The steepest slopes relative to their contrast sit on the edges' centres; the Sobel
-    # operator's own 3-px smoothing is taken out in quadrature (σ_sobel² ≈ 1/3 px²).
-    peak = float(np.percentile(ratio, 97))
-    sigma = 1.0 / (_SQRT_2PI * max(peak, 1e-6))
-    sigma = float(np.sqrt(max(sigma * sigma - 1.0 / 3.0, 0.0)))
-    return FocusReading(sigma, sigma * projector_per_camera, int(use.sum()))
+    slope = cv2.magnitude(gx, gy)
+    out = []
+    for region in regions:
+        # Inside the region, away from its border (the lit area's own edge is not the pattern's).
+        inner = cv2.erode(region.astype(np.uint8), kernel).astype(bool)
+        top = float(np.percentile(contrast[inner], 90)) if inner.any() else 0.0
+        use = inner & (contrast > 0.5 * top) & (top > 10.0)
+        n = int(use.sum())
+        if n < min_edges:
+            out.append(FocusReading(None, None, n))
+            continue
+        ratio = slope[use] / contrast[use]
+        # The steepest slopes relative to their contrast sit on the edges' centres; the Sobel
+        # operator's own 3-px smoothing is taken out in quadrature (σ_sobel² ≈ 1/3 px²).
+        peak = float(np.percentile(ratio, 97))
+        sigma = 1.0 / (_SQRT_2PI * max(peak, 1e-6))
+        sigma = float(np.sqrt(max(sigma * sigma - 1.0 / 3.0, 0.0)))
+        out.append(FocusReading(sigma, sigma * projector_per_camera, n))
+    return out
 
 
 # --------------------------------------------------------------------------- the preview
@@ -264,6 +276,9 @@ def analyse(frame: np.ndarray, area: ProjectedArea | None, *, pattern: str,
     regions = wall_regions(area, calib)
     ratio = area.projector_px_per_camera_px(projector_size)
     cell = pattern_cell(projector_size) / ratio
-    readings = [focus_reading(frame, r.mask, cell_camera_px=cell, projector_per_camera=ratio)
-                if pattern == "checker" else FocusReading(None, None, 0) for r in regions]
+    if pattern == "checker":
+        readings = focus_readings(frame, [r.mask for r in regions], cell_camera_px=cell,
+                                  projector_per_camera=ratio)
+    else:
+        readings = [FocusReading(None, None, 0) for _ in regions]
     return AimView(area, clipped, regions, readings)

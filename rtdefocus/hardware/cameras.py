@@ -64,8 +64,8 @@ def enumerate_named(enumerate_cameras: Callable | None = None,
     if enumerate_cameras is None or backends is None:
         try:
             import cv2_enumerate_cameras as ce
-        except ImportError:
-            log.info("cv2-enumerate-cameras is not installed: cameras are found by probing")
+        except (ImportError, OSError) as exc:   # OSError: a platform library that does not load
+            log.info("cv2-enumerate-cameras is not usable (%s): cameras are found by probing", exc)
             return []
         enumerate_cameras = enumerate_cameras or ce.enumerate_cameras
         backends = ce.supported_backends if backends is None else backends

@@ -70,7 +70,7 @@ class PreviewSink(Sink):
         Most preview updates per second (each one costs a downscale and an upload).
     """
 
-    def __init__(self, inner: Sink, window, *, rate: float = 8.0):
+    def __init__(self, inner: Sink, window, *, rate: float = 5.0):
         self.inner, self.preview = inner, window
         self.rate = float(rate)
         self.kind, self.realtime, self.interactive = inner.kind, inner.realtime, inner.interactive
