@@ -5,6 +5,7 @@ command; `rtdefocus cameras` from a fake camera list; older files still load."""
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 
 import pytest
@@ -188,7 +189,7 @@ def test_play_screen_follows_the_calibration(monkeypatch):
 
     from rtdefocus.cli.show import _screen
 
-    calib = virtual_calibration()
+    calib = dataclasses.replace(virtual_calibration(), meta={})    # shared: not edited in place
     monkeypatch.setattr(rem, "connected_monitors",
                         lambda: monitors(LAPTOP, dict(LAPTOP, name="Dell"), PROJECTOR))
     assert _screen(None, calib) == 0
@@ -205,8 +206,7 @@ def test_a_calibration_without_the_record_loads_and_remembers_nothing(tmp_path):
 
     from rtdefocus.calib.file import Calibration
 
-    calib = virtual_calibration()
-    calib.meta.pop("hardware", None)
+    calib = dataclasses.replace(virtual_calibration(), meta={})    # shared: not edited in place
     loaded = Calibration.load(calib.save(tmp_path / "old.npz"))
     assert rem.remembered(loaded) == {}
     calib.meta["hardware"] = {"monitor": rem.monitor_record(PROJECTOR)}
@@ -312,3 +312,14 @@ def test_cli_camera_backend_reaches_the_hardware(rig, monkeypatch):
         cli.main(["check", "--camera", "0", "--screen", "1", "--camera-backend", "v4l2"])
     assert rig["opened"] == [(0, "v4l2", 1)]
 
+
+
+def test_info_lists_the_cameras_by_name(monkeypatch, capsys):
+    from rtdefocus import cli
+
+    monkeypatch.setattr(cameras_mod, "enumerate_named",
+                        lambda *a, **k: [CameraEntry(1, "Logitech BRIO", "msmf")])
+    assert cli.main(["info"]) == 0
+    out = capsys.readouterr().out
+    assert "Cameras (--camera N --camera-backend B):" in out
+    assert "1: Logitech BRIO  [--camera-backend msmf]" in out

@@ -123,8 +123,13 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     calib.meta["captures"] = dict(cap.counts)
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
     if hasattr(procam, "setup_record"):
-        # Real hardware: the monitor and camera, so later commands find them again.
-        calib.meta["hardware"] = procam.setup_record()
+        # Real hardware: the monitor and camera, so later commands find them again. A record
+        # that cannot be made costs the convenience, never the calibration.
+        try:
+            calib.meta["hardware"] = procam.setup_record()
+        except Exception as exc:  # noqa: BLE001
+            log.warning("the monitor and camera could not be recorded (%s): pass --screen and "
+                        "--camera to later commands", exc)
     warning = view_warning(cap)
     if warning:
         log.warning("calibration done, but %s", warning)

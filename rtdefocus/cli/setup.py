@@ -15,7 +15,7 @@ log = logging.getLogger("rtdefocus")
 
 # --------------------------------------------------------------------------- info
 def _add_info(sub):
-    p = sub.add_parser("info", help="list OpenCL platforms/devices and the OpenGL renderer")
+    p = sub.add_parser("info", help="list OpenCL devices, the OpenGL renderer, monitors and cameras")
     p.set_defaults(func=cmd_info)
 
 
@@ -45,7 +45,19 @@ def cmd_info(args) -> int:
     print("GL sharing (warp output to OpenCL on the device):")
     print(f"   available: {why}" if shared else f"   not available, frames go through the host: {why}")
     _print_monitors()
+    _print_cameras()
     return 0
+
+
+def _print_cameras() -> None:
+    """The cameras the platform lists by name (``rtdefocus cameras`` also probes indices)."""
+    from ..hardware.cameras import enumerate_named
+
+    cameras = enumerate_named()
+    print("Cameras (--camera N --camera-backend B):" if cameras else
+          "Cameras: none listed by name (`rtdefocus cameras` also tries indices 0-5)")
+    for c in cameras:
+        print(f"   {c.describe()}")
 
 
 def _print_monitors() -> None:

@@ -171,7 +171,8 @@ def cmd_play(args) -> int:
     comp = Compensator(calib, backend=args.backend, method=args.method,
                        psf_energy=args.psf_energy, **flat,
                        precondition=None if args.precondition == "none" else args.precondition)
-    screen = _screen(args.screen, calib) if args.out is None else (args.screen or 0)
+    screen = (_screen(args.screen, calib) if args.out is None and args.windowed is None
+              else (args.screen or 0))
     bar = None
     with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
                      camera_fps=args.camera_fps,
