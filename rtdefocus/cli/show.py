@@ -177,9 +177,10 @@ def cmd_play(args) -> int:
         if not sink.realtime and not args.quiet:
             from tqdm import tqdm
 
-            bar = tqdm(total=None, unit="frame", desc="play", dynamic_ncols=True)
-
-            def progress(done, total):
+            def progress(done, total):     # the bar starts with the first frame (not before an error)
+                nonlocal bar
+                if bar is None:
+                    bar = tqdm(total=total, unit="frame", desc="play", dynamic_ncols=True)
                 if total is not None and bar.total != total:
                     bar.total = total
                 bar.update(done - bar.n)

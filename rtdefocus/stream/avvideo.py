@@ -63,8 +63,10 @@ class AvVideoSource(Source):
     ----------
     skipped : int
         Frames passed over because the clock was past them (realtime only).
-    shown_pts : list of float
-        Presentation time (seconds) of each frame returned.
+    last_pts : float or None
+        Presentation time (seconds) of the frame returned last.
+    last_clock : float or None
+        Where the clock was (:meth:`media_time`) when that frame was returned (realtime).
 
     Raises
     ------
@@ -115,7 +117,8 @@ class AvVideoSource(Source):
         self._t_origin = None         # media time of the clock's zero
         self._index = 0
         self.skipped = 0
-        self.shown_pts: list[float] = []
+        self.last_pts: float | None = None
+        self.last_clock: float | None = None
 
     # -------------------------------------------------------------- demuxing
     def _demux_one(self) -> bool:
@@ -228,7 +231,8 @@ class AvVideoSource(Source):
             except self._av.FFmpegError as exc:
                 raise self._decode_error(exc) from None
             out = Frame(self._index, np.ascontiguousarray(image), time.perf_counter())
-            self.shown_pts.append(self._pts(frame))
+            self.last_pts = self._pts(frame)
+            self.last_clock = self.media_time() if self.clock is not None else None
             self._index += 1
             return out
 

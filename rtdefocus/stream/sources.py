@@ -375,7 +375,7 @@ class TransformedSource(Source):
     def describe(self) -> str:
         return self.inner.describe()
 
-    def __getattr__(self, name):          # skipped, shown_pts, set_paused... of the inner source
+    def __getattr__(self, name):          # skipped, last_pts, set_paused... of the inner source
         if name == "inner":
             raise AttributeError(name)
         return getattr(self.inner, name)
