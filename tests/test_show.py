@@ -207,8 +207,10 @@ def film(tmp_path_factory):
 
 def _play_by_the_sound(comp, film, solve_ms, seed):
     """Plays ``film`` through the Player with a fake sound card; each frame's compensation takes
-    ``solve_ms`` (a range) of the card's time. Returns, per shown frame, (clock when read, clock
-    when shown, pts, flash?), the card, and the source's skip count."""
+    ``solve_ms`` (a range) of the card's time. Returns, per shown frame, (the source's clock
+    when read, the sound played when shown, pts, flash?), the card, and the source's skip
+    count. The film's sound starts at 0 s, so the sound played (what the card consumed) is the
+    true audio position, independent of the source's own bookkeeping."""
     from rtdefocus.stream.avvideo import AvVideoSource
 
     card = FakeSoundCard()
@@ -219,7 +221,7 @@ def _play_by_the_sound(comp, film, solve_ms, seed):
     class Screen(RecordingSink):
         def write(self, frame, index):
             card.advance(rng.uniform(*solve_ms) / 1e3)        # the solve and the present
-            rows.append((src.last_clock, src.media_time(), src.last_pts, frame.mean() > 150))
+            rows.append((src.last_clock, card.position(), src.last_pts, frame.mean() > 150))
 
     with src:
         assert src.live and src.fps == 30
