@@ -266,6 +266,51 @@ def test_a_slow_solver_skips_frames_to_follow_the_sound(comp, film):
     assert shown_at[-1] >= 29.9 and pts[-1] >= 29.9
 
 
+def test_pause_stops_the_sound_and_resumes_where_it_was(tmp_path, comp):
+    """Space pauses the picture and the sound's clock with it; after the second space the film
+    goes on from the held frame (nothing skipped), and quitting while paused releases the
+    clock. Time passes 10 ms per turn of the loop (each key poll)."""
+    from rtdefocus.stream.avvideo import AvVideoSource
+
+    class PausableCard(FakeSoundCard):
+        paused = False
+
+        def __init__(self):
+            super().__init__()
+            self.calls = []
+
+        def set_paused(self, paused):
+            self.calls.append(paused)
+            self.paused = paused
+
+        def advance(self, seconds):
+            if not self.paused:
+                super().advance(seconds)
+
+    card = PausableCard()
+    script = [[]] * 8 + [["space"]] + [[]] * 20 + [["space"]] + [[]] * 10 + [["space"], ["q"]]
+
+    pts = []
+
+    class Screen(RecordingSink):
+        def poll(self):
+            card.advance(0.010)
+            return script.pop(0) if script else ["q"]
+
+        def write(self, frame, index):
+            super().write(frame, index)
+            pts.append(round(src.last_pts * 30))        # the film's own frame number
+
+    sink = Screen(realtime=True, keys=[])
+    src = AvVideoSource(make_video(tmp_path / "v.mp4", seconds=2.0), clock=card)
+    with src:
+        Player(comp, src, sink, iterations=1, threads=False).run()
+    assert card.calls == [True, False, True, False]       # the last: released on quit
+    shown = list(dict.fromkeys(pts))                       # each frame once, in order
+    assert shown == list(range(len(shown))), f"a frame was skipped around the pause: {shown}"
+    assert 3 <= len(shown) < 20 and src.skipped == 0
+
+
 def test_file_rendering_decodes_every_frame_without_sound(tmp_path):
     from rtdefocus.stream.avvideo import AvVideoSource
 

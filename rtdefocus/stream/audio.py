@@ -129,20 +129,22 @@ class WallClock(AudioOutput):
         pass
 
     def position(self) -> float:
-        now = time.perf_counter()
-        if self._t0 is None:
-            self._t0 = now
-        return (self._paused_at if self._paused_at is not None else now) - self._t0
+        with self._lock:
+            now = time.perf_counter()
+            if self._t0 is None:
+                self._t0 = now
+            return (self._paused_at if self._paused_at is not None else now) - self._t0
 
     def set_paused(self, paused: bool) -> None:
-        now = time.perf_counter()
-        if self._t0 is None:
-            self._t0 = now
-        if paused and self._paused_at is None:
-            self._paused_at = now
-        elif not paused and self._paused_at is not None:
-            self._t0 += now - self._paused_at
-            self._paused_at = None
+        with self._lock:
+            now = time.perf_counter()
+            if self._t0 is None:
+                self._t0 = now
+            if paused and self._paused_at is None:
+                self._paused_at = now
+            elif not paused and self._paused_at is not None:
+                self._t0 += now - self._paused_at
+                self._paused_at = None
 
     def describe(self) -> str:
         return "no sound (wall clock)"
