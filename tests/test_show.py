@@ -61,10 +61,13 @@ def make_pdf(path, colours=PAGE_COLOURS, inches=(4.0, 3.0)):
     return path
 
 
-def make_video(path, seconds=2.0, fps=30, size=(32, 24), rate=48000, flash_every=1.0):
+def make_video(path, seconds=2.0, fps=30, size=(32, 24), rate=48000, flash_every=1.0,
+               sound_seconds=None):
     """An MP4 (MPEG-4 video, AAC sound) whose frame at each multiple of ``flash_every`` seconds
     is white (a flash) and whose sound is a 1 kHz beep for 50 ms from that same instant
-    (silence otherwise); the other frames are dark with a moving red column."""
+    (silence otherwise); the other frames are dark with a moving red column. The sound stops
+    after ``sound_seconds`` (default: with the picture)."""
+    sound_end = int((seconds if sound_seconds is None else sound_seconds) * rate)
     w, h = size
     n = int(round(seconds * fps))
     per_flash = int(round(flash_every * fps))
@@ -83,7 +86,7 @@ def make_video(path, seconds=2.0, fps=30, size=(32, 24), rate=48000, flash_every
             vf.pts = i
             for p in vs.encode(vf):
                 c.mux(p)
-            while done < (i + 1) * rate // fps:
+            while done < min((i + 1) * rate // fps, sound_end):
                 t = (done + np.arange(block)) / rate
                 beep = ((t % flash_every) < 0.05).astype(np.float32)
                 x = (0.5 * beep * np.sin(2 * np.pi * 1000 * t)).astype(np.float32)
@@ -309,6 +312,26 @@ def test_pause_stops_the_sound_and_resumes_where_it_was(tmp_path, comp):
     shown = list(dict.fromkeys(pts))                       # each frame once, in order
     assert shown == list(range(len(shown))), f"a frame was skipped around the pause: {shown}"
     assert 3 <= len(shown) < 20 and src.skipped == 0
+
+
+def test_a_sound_track_that_ends_early_hands_over_to_the_wall_clock(tmp_path, comp, caplog):
+    """The sound stops after 1 s of a 12 s film: the picture goes on to the end (by the wall
+    clock, said once in the log) instead of waiting for sound that never comes."""
+    from rtdefocus.stream.avvideo import AvVideoSource
+
+    card = FakeSoundCard()
+
+    class Screen(RecordingSink):
+        def write(self, frame, index):
+            super().write(frame, index)
+            card.advance(0.005)
+
+    src = AvVideoSource(make_video(tmp_path / "v.mp4", seconds=12.0, sound_seconds=1.0), clock=card)
+    sink = Screen()
+    with src, caplog.at_level("WARNING", logger="rtdefocus.stream.avvideo"):
+        Player(comp, src, sink, iterations=1, threads=False).run()
+    assert src.last_pts >= 11.9 and len(sink.frames) + src.skipped == 360
+    assert sum("wall clock" in r.getMessage() for r in caplog.records) == 1
 
 
 def test_file_rendering_decodes_every_frame_without_sound(tmp_path):

@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 AUDIO_LEAD = 0.3
 #: Longest single wait for the clock (keeps a stop request answered).
 WAIT_STEP = 0.01
+#: Decoded frames held while looking for the sound that goes with them (a broken or lagging
+#: sound track must not pull the whole film into memory).
+MAX_AHEAD = 240
 
 REENCODE = "re-encode it, e.g. `ffmpeg -i IN -c:v libx264 -pix_fmt yuv420p -c:a aac OUT.mp4`"
 
@@ -202,6 +205,14 @@ class AvVideoSource(Source):
             # keep the sound ahead of the clock while waiting
             while (self._astream is not None and not self._eof
                    and (self._audio_end is None or self._audio_end < pts + AUDIO_LEAD)):
+                if len(self._pending) > MAX_AHEAD:
+                    # the sound track ends early or lags far behind the picture: go on by the
+                    # wall clock rather than read the whole film into memory waiting for it
+                    log.warning("%s: no sound near %.1f s; the rest plays by the wall clock",
+                                self.path.name, pts)
+                    self.clock.end()
+                    self._audio_end = float("inf")
+                    break
                 self._demux_one()
             self.clock.sleep(min(WAIT_STEP, pts - now))
 

@@ -175,7 +175,8 @@ class ScreenSource(Source):
             if not 0 <= screen < len(monitors):
                 listed = ", ".join(f"screen:{i} {m['width']}x{m['height']}+{m['left']}+{m['top']}"
                                    for i, m in enumerate(monitors)) or "none"
-                raise InputError(f"no monitor {screen} to capture; connected: {listed}")
+                raise InputError(f"no monitor {screen} to capture; connected: {listed}; give one "
+                                 "of these (e.g. screen:0)")
             m = monitors[screen]
             region = (m["left"], m["top"], m["width"], m["height"])
         self.region = tuple(int(v) for v in region)
