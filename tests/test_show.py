@@ -536,3 +536,15 @@ def test_null_sink_of_a_playlist_counts_every_item(tmp_path, comp):
     with ImageSequenceSink(tmp_path / "o") as sink:
         Show(comp, [[folder / "01 title.png"]], sink, iterations=1).run()
     assert len(list((tmp_path / "o").glob("*.png"))) == 1
+
+
+def test_cli_video_file_out_keeps_the_source_rate(tmp_path, calib):
+    import cv2
+
+    setup = calib.save(tmp_path / "setup.npz")
+    clip = make_video(tmp_path / "clip.mp4", seconds=0.4, fps=25, size=PROJ)
+    assert cli.main(["-q", "play", str(setup), str(clip), "--out", str(tmp_path / "o.mp4"),
+                     "--iterations", "1"]) == 0
+    cap = cv2.VideoCapture(str(tmp_path / "o.mp4"))
+    assert cap.get(cv2.CAP_PROP_FPS) == 25 and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 10
+    cap.release()

@@ -162,15 +162,7 @@ def cmd_play(args) -> int:
                        psf_energy=args.psf_energy, **flat,
                        precondition=None if args.precondition == "none" else args.precondition)
     bar = None
-    fps = args.fps
-    if fps is None and args.out is not None:   # a video file sink is written at the source's rate
-        from ..stream.sources import VIDEO_EXTENSIONS, open_source
-
-        single = Path(args.source).expanduser()
-        if single.is_file() and single.suffix.lower() in VIDEO_EXTENSIONS:
-            with open_source(args.source) as probe:
-                fps = probe.fps
-    with open_sink(args.out, fps=fps, screen=args.screen,
+    with open_sink(args.out, fps=args.fps, screen=args.screen,
                    fullscreen=args.windowed is None, window_size=args.windowed,
                    expect_size=calib.projector_size) as sink:
         progress = None

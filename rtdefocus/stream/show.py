@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InputError
 from .loop import Player
-from .sinks import Sink
+from .sinks import Sink, VideoFileSink
 from .sources import STILL_EXTENSIONS, VIDEO_EXTENSIONS, SlidesSource, natural_key, open_source
 from .stats import LoopStats
 
@@ -145,10 +145,17 @@ class Show:
         out: list[LoopStats] = []
         sink = _OffsetSink(self.sink)
         controls = None
+        options = dict(self.player_options)
+        progress = options.get("progress")
+        if progress is not None and len(self.items) > 1:   # one count across the items
+            options["progress"] = lambda done, total: progress(sink.offset + done, None)
         while True:
             for item in self.items:
                 with self.open_item(item) as src:
-                    player = self.player = Player(self.comp, src, sink, **self.player_options)
+                    if (isinstance(self.sink, VideoFileSink) and not self.sink.count and src.fps
+                            and options.get("fps") is None):
+                        self.sink.fps = float(src.fps)     # the file plays at its source's rate
+                    player = self.player = Player(self.comp, src, sink, **options)
                     if controls is not None:           # the viewer's mode and overlay carry on
                         player.controls.mode, player.controls.overlay = controls.mode, controls.overlay
                     player.leave_at_end = len(self.items) > 1 or self.loop
