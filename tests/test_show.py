@@ -5,6 +5,8 @@ decode. Screen and window capture under Xvfb are in test_capture.py."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from test_stream import PROJ, RecordingSink, max_abs, synthetic_frames, virtual_calibration
@@ -548,3 +550,56 @@ def test_cli_video_file_out_keeps_the_source_rate(tmp_path, calib):
     cap = cv2.VideoCapture(str(tmp_path / "o.mp4"))
     assert cap.get(cv2.CAP_PROP_FPS) == 25 and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 10
     cap.release()
+
+
+def test_sound_device_output_counts_what_the_callback_played(monkeypatch):
+    """SoundDeviceOutput against a stand-in for the sounddevice module (no PortAudio here): the
+    callback plays the queued samples in order, its position is what was played less the
+    output latency, an underrun does not move it, and after end() silence keeps it going."""
+    import sys
+    import types
+
+    from rtdefocus.stream.audio import SoundDeviceOutput
+
+    class Stream:
+        latency, active = 0.02, False
+
+        def __init__(self, **kw):
+            self.kw = kw
+
+        def start(self):
+            self.active = True
+
+        def stop(self):
+            self.active = False
+
+        def close(self):
+            self.active = False
+
+    fake = types.SimpleNamespace(
+        query_devices=lambda device, kind: {"max_output_channels": 2, "default_samplerate": 1000.0},
+        OutputStream=Stream)
+    monkeypatch.setitem(sys.modules, "sounddevice", fake)
+    out = SoundDeviceOutput(channels=2)
+    assert out.rate == 1000 and out.channels == 2 and out._stream.active
+    ramp = np.arange(200, dtype=np.float32).reshape(100, 2) / 200
+    out.write(ramp[:60])
+    out.write(ramp[60:])
+    buf = np.full((80, 2), 9.0, np.float32)
+    out._callback(buf, 80, None, None)
+    assert np.array_equal(buf, ramp[:80]) and out.position() == pytest.approx(0.08 - 0.02)
+    out._callback(buf, 80, None, None)                  # 20 left: the rest is an underrun
+    assert np.array_equal(buf[:20], ramp[80:]) and not buf[20:].any()
+    assert out.position() == pytest.approx(0.10 - 0.02)
+    out._callback(buf, 80, None, None)
+    assert out.position() == pytest.approx(0.10 - 0.02), "an underrun does not move the clock"
+    out.end()
+    out._callback(buf, 50, None, None)
+    at_end = out.position()
+    assert at_end == pytest.approx(0.10 - 0.02, abs=0.01)
+    time.sleep(0.05)
+    out._callback(buf, 50, None, None)
+    assert out.position() - at_end >= 0.04, "after the end the clock runs on at wall time"
+    out.set_paused(True)
+    assert not out._stream.active
+    out.close()

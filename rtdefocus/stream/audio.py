@@ -93,7 +93,8 @@ class AudioOutput:
     # -------------------------------------------------------------- consumer side
     def _take(self, n: int, out: np.ndarray | None = None) -> int:
         """Consume up to ``n`` samples into ``out`` ((n, channels), zero-filled past the queue);
-        returns how many were real samples. After :meth:`end`, silence counts as played."""
+        returns how many were real samples. Once :meth:`end` was called and the queue has
+        played, :meth:`position` runs on at wall time from that moment."""
         with self._lock:
             got = 0
             while got < n and self._chunks:
@@ -173,10 +174,7 @@ class SoundDeviceOutput(AudioOutput):
         self._stream.start()
 
     def _callback(self, outdata, frames, time_info, status) -> None:  # PortAudio's thread
-        got = self._take(frames, outdata)
-        if self._ended and got < frames:
-            with self._lock:
-                self._played += frames - got      # silence after the end keeps the clock going
+        self._take(frames, outdata)           # after the end, the base runs on at wall time
 
     def position(self) -> float:
         return max(0.0, super().position() - self._latency)
