@@ -16,9 +16,6 @@ import rtdefocus as rd
 from rtdefocus import cli
 from rtdefocus.errors import InputError
 
-pytest.importorskip("mss", reason="screen capture comes with the show extra: pip install rtdefocus[show]")
-pytest.importorskip("Xlib", reason="window lists come with the show extra: pip install rtdefocus[show]")
-
 SCREEN = test_window.SCREEN
 xvfb, probe, display = test_window.xvfb, test_window.probe, test_window.display
 TITLE = "Quarterly review - Viewer"

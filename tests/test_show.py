@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 
+import av  # the show extra, part of the test extra
 import numpy as np
 import pytest
 from test_stream import PROJ, RecordingSink, max_abs, synthetic_frames, virtual_calibration
@@ -26,9 +27,6 @@ from rtdefocus.stream import (
     playlist,
 )
 from rtdefocus.stream.audio import AudioOutput, WallClock, open_audio_output
-
-av = pytest.importorskip("av", reason="PyAV comes with the show extra: pip install rtdefocus[show]")
-pdfium = pytest.importorskip("pypdfium2", reason="the show extra: pip install rtdefocus[show]")
 
 #: Page colours of the generated deck (RGB).
 PAGE_COLOURS = [(220, 30, 30), (30, 160, 40), (40, 60, 210)]
@@ -603,3 +601,22 @@ def test_sound_device_output_counts_what_the_callback_played(monkeypatch):
     out.set_paused(True)
     assert not out._stream.active
     out.close()
+
+
+def test_without_pyav_the_window_plays_videos_through_opencv(tmp_path, monkeypatch, caplog):
+    import sys
+
+    import rtdefocus.stream.sources as sources
+    from rtdefocus.stream import VideoSource
+    from rtdefocus.stream.avvideo import AvVideoSource
+
+    clip = make_video(tmp_path / "clip.mp4", seconds=0.2)
+    with open_source(clip, realtime=True, audio=False) as src:
+        assert isinstance(src, AvVideoSource) and src.live
+    monkeypatch.setitem(sys.modules, "av", None)
+    monkeypatch.setattr(sources, "_told_no_pyav", False)
+    with caplog.at_level("WARNING", logger="rtdefocus.stream.sources"):
+        with open_source(clip, realtime=True) as src:
+            frames = list(src)
+    assert isinstance(src, VideoSource) and not src.live and len(frames) == 6
+    assert any("rtdefocus[show]" in r.getMessage() for r in caplog.records)
