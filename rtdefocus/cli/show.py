@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from .common import parse_size, read_image, write_image
 from .setup import _add_camera_options
@@ -61,13 +62,20 @@ def cmd_warp(args) -> int:
 
 # --------------------------------------------------------------------------- play
 PLAY_EPILOG = """\
-SOURCE is an image, a folder of images (slides, natural order: 2 before 10), a video file,
-camera:INDEX (e.g. camera:0), camera:URL or a stream URL (rtsp://, http://...).
+SOURCE is an image, a PDF (one slide per page), a folder of images and PDFs (slides, natural
+order: 2 before 10), a video file, a folder that also holds videos (a playlist, in name order),
+camera:INDEX (e.g. camera:0), camera:URL, a stream URL (rtsp://, http://...), screen:INDEX (a
+monitor, grabbed live) or window:TITLE (a window, by part of its title).
 Without --out the frames go full-screen to monitor --screen, with keys:
   space pause   left/right previous/next slide   c compensation on/off (A/B)
   g geometry only   s stats overlay   q/Esc quit
+Videos play with their sound, kept in step by the sound card's clock (--no-audio: silent).
+At the end the projector stays black until a key (--exit-at-end: leave; --loop: start again).
 examples:
   rtdefocus play setup.npz talk/ --screen 1                   slideshow on the projector
+  rtdefocus play setup.npz deck.pdf --screen 1 --margin 0.03  a PDF deck, 3 % black margin
+  rtdefocus play setup.npz window:Impress --screen 1          another program's window
+  rtdefocus play setup.npz show/ --screen 1 --loop            a playlist, over and over
   rtdefocus play setup.npz camera:0 --screen 1 --fps 30       live camera feed
   rtdefocus play setup.npz clip.mp4 --out clip_comp.mp4       render a video file offline
   rtdefocus play setup.npz clip.mp4 --out null --stats s.json benchmark, statistics as JSON
@@ -93,7 +101,8 @@ def _add_play(sub):
                        "the projector (or to files)", epilog=PLAY_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("calibration", help="the set-up file from `rtdefocus calibrate` (.npz)")
-    p.add_argument("source", help="image | folder | video | camera:INDEX | camera:URL | URL")
+    p.add_argument("source", help="image | PDF | folder | video | camera:INDEX | camera:URL | URL | "
+                   "screen:INDEX | window:TITLE")
     p.add_argument("--out", metavar="FILE|DIR", help="video file (.mp4, .avi), image (.png), folder "
                    "(numbered PNGs) or 'null'; default: full-screen window on --screen")
     p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
@@ -125,6 +134,17 @@ def _add_play(sub):
     p.add_argument("--preview", nargs="?", const=(480, 330), type=parse_size, metavar="WxH",
                    help="an operator's window on the laptop: what the projector shows, with fps, "
                    "iterations and frames shown with geometry only (default size 480x330)")
+    p.add_argument("--loop", action="store_true", help="start again after the last item (window only)")
+    p.add_argument("--exit-at-end", action="store_true",
+                   help="leave at the end instead of holding a black projector until a key")
+    p.add_argument("--fit", choices=("contain", "cover"),
+                   help="place the content in the projector's frame: whole with black bars "
+                   "(contain) or filling it, cropped (cover); default: the largest area of the "
+                   "content's own aspect")
+    p.add_argument("--margin", metavar="M",
+                   help="black margin around the content: a fraction of the frame (0.05) or "
+                   "projector pixels (40px); implies --fit contain unless --fit is given")
+    p.add_argument("--no-audio", action="store_true", help="play videos without sound")
     p.add_argument("--sequential", action="store_true",
                    help="decode, compensate and encode one after another on one thread (for "
                    "comparison; default: decode and file encode on threads of their own)")
@@ -164,9 +184,14 @@ def _with_preview(sink, size):
 def cmd_play(args) -> int:
     from ..calib.file import Calibration
     from ..compensate.compensator import Compensator
-    from ..stream import Player, open_sink, open_source
+    from ..stream import Show, open_sink
+    from ..stream.placement import Placement, parse_margin
 
     calib = Calibration.load(args.calibration)
+    placement = None
+    if args.fit or args.margin is not None:
+        placement = Placement(tuple(calib.projector_size), args.fit or "contain",
+                              parse_margin(args.margin) if args.margin is not None else 0.0)
     flat = {} if args.flatten is None else {"surface": "flatten", "brightness": args.flatten}
     comp = Compensator(calib, backend=args.backend, method=args.method,
                        psf_energy=args.psf_energy, **flat,
@@ -174,40 +199,54 @@ def cmd_play(args) -> int:
     screen = (_screen(args.screen, calib) if args.out is None and args.windowed is None
               else (args.screen or 0))
     bar = None
-    with open_source(args.source, camera_size=args.camera_size, fourcc=args.fourcc,
-                     camera_fps=args.camera_fps,
-                     camera_backend=args.camera_backend or "auto") as source:
-        with open_sink(args.out, fps=args.fps or source.fps, screen=screen,
-                       fullscreen=args.windowed is None, window_size=args.windowed,
-                       expect_size=calib.projector_size) as sink:
-            progress = None
-            if not sink.realtime and not args.quiet:
-                from tqdm import tqdm
+    with open_sink(args.out, fps=args.fps, screen=screen,
+                   fullscreen=args.windowed is None, window_size=args.windowed,
+                   expect_size=calib.projector_size) as sink:
+        progress = None
+        if not sink.realtime and not args.quiet:
+            from tqdm import tqdm
 
-                bar = tqdm(total=source.n_frames, unit="frame", desc="play", dynamic_ncols=True)
-
-                def progress(done, total):
-                    if total is not None and bar.total != total:
-                        bar.total = total
-                    bar.update(done - bar.n)
-            cache = None if args.no_cache else (args.cache or True)
-            shown = _with_preview(sink, args.preview)
-            player = Player(comp, source, shown, fps=args.fps, iterations=args.iterations,
-                            cache=cache, progress=progress, overlay=args.overlay,
-                            threads=not args.sequential)
+            def progress(done, total):     # the bar starts with the first frame (not before an error)
+                nonlocal bar
+                if bar is None:
+                    bar = tqdm(total=total, unit="frame", desc="play", dynamic_ncols=True)
+                if total is not None and bar.total != total:
+                    bar.total = total
+                bar.update(done - bar.n)
+        cache = None if args.no_cache else (args.cache or True)
+        shown = _with_preview(sink, args.preview)
+        show = Show(comp, args.source, shown, loop=args.loop, exit_at_end=args.exit_at_end,
+                    placement=placement, audio=not args.no_audio,
+                    source_options={"camera_size": args.camera_size, "fourcc": args.fourcc,
+                                    "camera_fps": args.camera_fps,
+                                    "camera_backend": args.camera_backend or "auto"},
+                    fps=args.fps, iterations=args.iterations, cache=cache, progress=progress,
+                    overlay=args.overlay, threads=not args.sequential)
+        all_stats = []
+        try:
+            all_stats = show.run()
+        except KeyboardInterrupt:  # Ctrl+C ends a live show; the summary still counts
+            print("interrupted", file=sys.stderr)
+            if show.player is not None:
+                all_stats = [show.player.stats]
+        finally:
+            if bar is not None:
+                bar.close()
             if shown is not sink:
-                shown.attach(player)
-            try:
-                player.run()
-            except KeyboardInterrupt:  # Ctrl+C ends a live show; the summary still counts
-                print("interrupted", file=sys.stderr)
-            finally:
-                if bar is not None:
-                    bar.close()
-                if shown is not sink:
-                    shown.close()
-    stats = player.stats
-    print(stats.summary())
-    if args.stats:
-        print(f"wrote {stats.write_json(args.stats)}")
+                shown.close()
+    for stats in all_stats:
+        print(stats.summary())
+    if args.stats and all_stats:
+        print(f"wrote {_stats_json(all_stats, args.stats)}")
     return 0
+
+
+def _stats_json(all_stats, path):
+    """One item: its statistics; a playlist: ``{"items": [...]}``, one per item played."""
+    if len(all_stats) == 1:
+        return all_stats[0].write_json(path)
+    import json
+
+    path = Path(path)
+    path.write_text(json.dumps({"items": [st.as_dict() for st in all_stats]}, indent=2))
+    return path

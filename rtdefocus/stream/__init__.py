@@ -9,6 +9,8 @@
 from .cache import SlideCache, calibration_fingerprint, default_cache_dir
 from .controls import MODES, Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .loop import Player, play
+from .placement import Placement
+from .show import Show, playlist
 from .sinks import (
     ImageFileSink,
     ImageSequenceSink,
@@ -32,8 +34,9 @@ from .stats import LoopStats
 
 __all__ = [
     "ArraySource", "CameraSource", "Controls", "Frame", "ImageFileSink", "ImageSequenceSink",
-    "IterationBudget", "KeyDispatcher", "LoopStats", "MODES", "NullSink", "Player", "Sink",
+    "IterationBudget", "KeyDispatcher", "LoopStats", "MODES", "NullSink", "Placement", "Player",
+    "Show", "Sink",
     "SlideCache", "SlidesSource", "Source", "VideoFileSink", "VideoSource", "WindowSink",
     "calibration_fingerprint", "default_cache_dir", "draw_overlay", "natural_key", "open_sink",
-    "open_source", "play",
+    "open_source", "play", "playlist",
 ]

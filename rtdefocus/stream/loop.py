@@ -159,6 +159,8 @@ class Player(SlidesMixin):
     main thread). The returned :class:`LoopStats` holds the run's summary.
     """
 
+    _source_paused = False        # the source's own clock is paused (see _pause_source)
+
     def __init__(self, compensator, source: Source, sink: Sink, *, fps: float | None = None,
                  iterations: int | None = None, live: bool | None = None,
                  queue_size: int | None = None, cache=None, progress: ProgressFn | None = None,
@@ -503,6 +505,7 @@ class Player(SlidesMixin):
             ok = True
         finally:
             self._stop.set()
+            self._pause_source(False)            # a read waiting on a paused clock returns
             if self._writer is not None:
                 if not ok:
                     self._writer.abort()
@@ -511,6 +514,14 @@ class Player(SlidesMixin):
                 thread.join(timeout=10)
                 if thread.is_alive():
                     log.warning("decoder thread did not stop within 10 s (a blocking camera read?)")
+
+    def _pause_source(self, paused: bool) -> None:
+        """A live source with a clock of its own (a video shown by its sound) stops with the
+        picture: its sound and clock pause while the viewer pauses."""
+        pause = getattr(self.source, "set_paused", None) if self.source.live else None
+        if pause is not None and paused != self._source_paused:
+            self._source_paused = paused
+            pause(paused)
 
     def _play_frames(self, q: queue.Queue) -> None:
         held: Frame | None = None
@@ -522,12 +533,14 @@ class Player(SlidesMixin):
                 break
             if c.paused and self.sink.realtime:
                 self._hold.set()
+                self._pause_source(True)
                 if held is not None:
                     shown_version = self._refresh_held(held, shown_version)
                 else:
                     self._idle(0.02)
                 continue
             self._hold.clear()
+            self._pause_source(False)
             self._work = None
             if self.threads:
                 try:

@@ -46,6 +46,10 @@ class SlidesMixin:
     """
 
     _work: _Work | None
+    #: Interactive show: "next" on the last slide ends the run (a playlist moves on) instead of
+    #: staying there; :attr:`left_at_end` then says so.
+    leave_at_end = False
+    left_at_end = False
 
     def _chunk(self) -> int:
         if self.budget is not None:
@@ -145,6 +149,10 @@ class SlidesMixin:
             if c.quit:
                 break
             if c.step:
+                if self.leave_at_end and current + c.step >= n:
+                    c.step = 0
+                    self.left_at_end = True
+                    break
                 current = min(max(current + c.step, 0), n - 1)
                 c.step = 0
             if current not in seen:

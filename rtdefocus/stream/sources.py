@@ -93,8 +93,17 @@ def natural_key(name: str) -> list:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
+PDF_EXTENSIONS = frozenset({".pdf"})
+#: What a slide deck can hold: images, and PDFs (each page a slide).
+STILL_EXTENSIONS = IMAGE_EXTENSIONS | PDF_EXTENSIONS
+#: File extensions a playlist folder plays as videos.
+VIDEO_EXTENSIONS = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg",
+                              ".wmv", ".flv", ".ts", ".ogv"})
+
+
 class SlidesSource(Source):
-    """Still images shown one at a time: a single image file, or a folder of them.
+    """Still images shown one at a time: an image file, a PDF (one slide per page), a folder of
+    images and PDFs, or a list of such files.
 
     Images load on demand and a few stay in memory (``keep``), so a deck of hundreds of large
     slides does not fill the RAM. :meth:`read` walks the slides in order (for rendering them to
@@ -102,29 +111,60 @@ class SlidesSource(Source):
 
     Parameters
     ----------
-    path : path of an image file, or of a folder of images (natural sort order: 2 before 10).
+    path : path of an image file, a PDF, a folder of them (natural sort order: 2 before 10), or
+        a list of image and PDF files (shown in that order).
     keep : how many decoded slides to keep in memory.
+    size : (width, height) PDF pages are rendered into (aspect kept): the projector's.
+    transform : ``transform(image) -> image`` applied to every slide as it loads (placement).
     """
 
     still = True
 
-    def __init__(self, path: str | Path, keep: int = 4):
-        path = Path(path)
-        if path.is_dir():
-            files = [p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()]
-            if not files:
-                kinds = ", ".join(sorted(IMAGE_EXTENSIONS))
-                raise InputError(f"folder {str(path)!r} holds no images ({kinds}); "
-                                 "export the slides there as PNG or JPEG")
-            self.paths = sorted(files, key=lambda p: natural_key(p.name))
+    def __init__(self, path, keep: int = 4, *, size: tuple[int, int] | None = None,
+                 transform=None):
+        if isinstance(path, (list, tuple)):
+            files = [Path(p) for p in path]
             self.kind = "slides"
-        elif path.is_file():
-            self.paths = [path]
-            self.kind = "image"
+            path = files[0].parent if files else Path(".")
         else:
-            raise InputError(f"no image or folder at {str(path)!r}")
+            path = Path(path)
+            if path.is_dir():
+                files = [p for p in path.iterdir() if p.suffix.lower() in STILL_EXTENSIONS and p.is_file()]
+                if not files:
+                    kinds = ", ".join(sorted(STILL_EXTENSIONS))
+                    raise InputError(f"folder {str(path)!r} holds no images or PDFs ({kinds}); "
+                                     "export the slides there as PNG, JPEG or PDF")
+                files = sorted(files, key=lambda p: natural_key(p.name))
+                self.kind = "slides"
+            elif path.is_file():
+                files = [path]
+                self.kind = "pdf" if path.suffix.lower() in PDF_EXTENSIONS else "image"
+            else:
+                raise InputError(f"no image or folder at {str(path)!r}")
         self.path = path
+        self._decks: dict[Path, object] = {}
+        #: One entry per slide: its file, and its page for a PDF (None for an image).
+        self.paths: list[Path] = []
+        self.pages: list[int | None] = []
+        self._size = size
+        try:
+            for f in files:
+                if f.suffix.lower() in PDF_EXTENSIONS:
+                    from .pdf import PdfDeck
+
+                    deck = self._decks[f] = PdfDeck(f, size)
+                    self.paths += [f] * deck.n_pages
+                    self.pages += list(range(deck.n_pages))
+                else:
+                    self.paths.append(f)
+                    self.pages.append(None)
+        except BaseException:
+            self.close()
+            raise
+        if not self.paths:
+            raise InputError(f"no slides in {str(path)!r}")
         self.n_frames = len(self.paths)
+        self.transform = transform
         self._keep = max(1, keep)
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._next = 0
@@ -135,7 +175,10 @@ class SlidesSource(Source):
             raise InputError(f"slide {i} out of range 0..{self.n_frames - 1}")
         img = self._cache.get(i)
         if img is None:
-            img = read_image(self.paths[i])
+            page = self.pages[i]
+            img = read_image(self.paths[i]) if page is None else self._decks[self.paths[i]].render(page)
+            if self.transform is not None:
+                img = self.transform(img)
             self._cache[i] = img
             while len(self._cache) > self._keep:
                 self._cache.popitem(last=False)
@@ -144,7 +187,8 @@ class SlidesSource(Source):
         return img
 
     def name(self, i: int) -> str:
-        return self.paths[i].name
+        page = self.pages[i]
+        return self.paths[i].name if page is None else f"{self.paths[i].name} p{page + 1}"
 
     def read(self) -> Frame | None:
         if self._next >= self.n_frames:
@@ -153,8 +197,14 @@ class SlidesSource(Source):
         self._next += 1
         return Frame(i, self.load(i), time.perf_counter(), self.name(i))
 
+    def close(self) -> None:
+        for deck in self._decks.values():
+            deck.close()
+        self._decks = {}
+
     def describe(self) -> str:
-        return f"{self.kind} {self.path} ({self.n_frames} image{'s' if self.n_frames > 1 else ''})"
+        n, unit = self.n_frames, "page" if self.kind == "pdf" else "image"
+        return f"{self.kind} {self.path} ({n} {unit}{'s' if n > 1 else ''})"
 
 
 class VideoSource(Source):
@@ -183,6 +233,9 @@ class VideoSource(Source):
             return None
         ok, bgr = self._cap.read()
         if not ok or bgr is None:
+            if self._index == 0:
+                raise InputError(f"{str(self.path)!r} opens as a video but no frame could be decoded; "
+                                 "re-encode it, e.g. `ffmpeg -i IN -c:v libx264 -pix_fmt yuv420p OUT.mp4`")
             return None
         frame = Frame(self._index, rgb_from_cv2(bgr), time.perf_counter())
         self._index += 1
@@ -304,25 +357,122 @@ def parse_camera(spec: str) -> int | str | None:
     return None
 
 
+class TransformedSource(Source):
+    """Another source's frames passed through ``transform(image) -> image`` (placement)."""
+
+    def __init__(self, inner: Source, transform):
+        self.inner, self.transform = inner, transform
+        self.kind, self.live, self.still = inner.kind, inner.live, inner.still
+        self.fps, self.n_frames = inner.fps, inner.n_frames
+
+    def read(self) -> Frame | None:
+        frame = self.inner.read()
+        if frame is None:
+            return None
+        return Frame(frame.index, self.transform(frame.image), frame.t_read, frame.name)
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def describe(self) -> str:
+        return self.inner.describe()
+
+    def __getattr__(self, name):          # skipped, last_pts, set_paused... of the inner source
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+
 def open_source(spec: str | Path, *, camera_size: tuple[int, int] | None = None,
                 fourcc: str | None = None, camera_fps: float | None = None,
-                camera_backend: str = "auto") -> Source:
+                camera_backend: str = "auto",
+                projector_size: tuple[int, int] | None = None, realtime: bool = False,
+                audio: bool = True, placement=None, capture_fps: float | None = None) -> Source:
     """The source a command-line SOURCE names.
 
     ``camera:N`` or ``camera:URL`` or a stream URL (rtsp://, http://, ...) -> :class:`CameraSource`;
-    a folder -> slides; an image file -> one slide; any other file -> :class:`VideoSource`.
+    ``screen:N`` / ``window:TITLE`` -> a monitor or a window grabbed live
+    (:mod:`~rtdefocus.stream.capture`); a folder of images and PDFs, an image, a PDF -> slides
+    (PDF pages rendered at ``projector_size``); any other file -> a video. A folder that also
+    holds videos is a playlist: play it with :class:`~rtdefocus.stream.show.Show`.
+
+    Parameters
+    ----------
+    camera_backend : OpenCV capture backend of a camera source (``auto``, ``v4l2``, ``dshow``,
+        ``msmf``, ``avfoundation``).
+    projector_size : (width, height) PDF pages are rendered at.
+    realtime : the frames go to the projector window: a video is then shown by its audio clock
+        with its sound (PyAV, the ``show`` extra; without it OpenCV decodes it, without sound).
+    audio : False: no sound (``--no-audio``); the video runs at wall time.
+    placement : ``placement(image) -> image`` applied to every frame
+        (:class:`~rtdefocus.stream.placement.Placement`).
+    capture_fps : grabs per second of a screen or window source (default 30).
     """
     text = str(spec)
+    src = _open(text, camera_size=camera_size, fourcc=fourcc, camera_fps=camera_fps,
+                camera_backend=camera_backend, projector_size=projector_size, realtime=realtime,
+                audio=audio, capture_fps=capture_fps)
+    if placement is None:
+        return src
+    if isinstance(src, SlidesSource):
+        src.transform = placement
+        return src
+    return TransformedSource(src, placement)
+
+
+def _open(text: str, *, camera_size, fourcc, camera_fps, camera_backend, projector_size, realtime,
+          audio, capture_fps) -> Source:
     camera = parse_camera(text)
     if camera is not None:
         return CameraSource(camera, size=camera_size, fourcc=fourcc, fps=camera_fps,
                             backend=camera_backend)
+    low = text.lower()
+    if low.startswith("screen:"):
+        from .capture import ScreenSource
+
+        rest = text[len("screen:"):]
+        if not rest.isdigit():
+            raise InputError(f"screen source must be screen:INDEX (e.g. screen:1); got {text!r}")
+        return ScreenSource(int(rest), fps=capture_fps or 30.0)
+    if low.startswith("window:"):
+        from .capture import WindowSource
+
+        title = text[len("window:"):]
+        if not title:
+            raise InputError("window source must be window:TITLE (part of the window's title)")
+        return WindowSource(title, fps=capture_fps or 30.0)
     path = Path(text).expanduser()
     if path.is_dir():
-        return SlidesSource(path)
+        videos = [p.name for p in path.iterdir() if p.suffix.lower() in VIDEO_EXTENSIONS]
+        if videos:
+            raise InputError(f"folder {text!r} holds videos ({', '.join(sorted(videos)[:3])}...): it is "
+                             "a playlist; play it with rtdefocus.stream.Show (the CLI does)")
+        return SlidesSource(path, size=projector_size)
     if path.is_file():
-        if path.suffix.lower() in IMAGE_EXTENSIONS:
-            return SlidesSource(path)
-        return VideoSource(path)
-    raise InputError(f"SOURCE {text!r} not found: give an image, a folder of images, a video file, "
-                     "camera:INDEX (e.g. camera:0) or a stream URL")
+        if path.suffix.lower() in STILL_EXTENSIONS:
+            return SlidesSource(path, size=projector_size)
+        return open_video(path, realtime=realtime, audio=audio)
+    raise InputError(f"SOURCE {text!r} not found: give an image, a PDF, a folder, a video file, "
+                     "camera:INDEX (e.g. camera:0), screen:INDEX, window:TITLE or a stream URL")
+
+
+_told_no_pyav = False
+
+
+def open_video(path: str | Path, *, realtime: bool = False, audio: bool = True) -> Source:
+    """A video file. Realtime (the window): PyAV with its sound, frames picked by the audio
+    clock (:class:`~rtdefocus.stream.avvideo.AvVideoSource`); without PyAV, or for rendering to
+    files (every frame, no sound): OpenCV (:class:`VideoSource`)."""
+    global _told_no_pyav
+    if realtime:
+        from .avvideo import AvVideoSource, have_pyav
+
+        if have_pyav():
+            from .audio import open_audio_output
+
+            return AvVideoSource(path, clock=open_audio_output(mute=not audio))
+        if not _told_no_pyav:
+            log.warning("videos play without sound and by the wall clock: install PyAV with "
+                        "pip install rtdefocus[show]")
+            _told_no_pyav = True
+    return VideoSource(path)
