@@ -156,8 +156,8 @@ def gain_share(procam, calib, images: dict) -> tuple[float, float]:
     display rect of the calibrated geometry, camera views in ideal camera pixels; both
     compensators solve for the calibrated warp of each image."""
     from rtdefocus import Compensator
-    from rtdefocus.scores import camera_view, psnr, rect_mask
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.scores import camera_view, psnr, rect_mask
 
     geometry = Compensator(calib, method="none")
     ours = Compensator(calib, method="ycbcr")

@@ -14,7 +14,7 @@ from helpers import blind_calibrate
 
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator
-from rtdefocus.scores import psnr, rect_mask, ssim
+from rtdefocus.study.scores import psnr, rect_mask, ssim
 
 PROJECTOR, CAMERA = (320, 240), (512, 384)
 CAMERA_GAMMA = 1.8

@@ -13,7 +13,7 @@ import pytest
 
 import rtdefocus as rd
 from rtdefocus.compensate.motion import MotionEstimator
-from rtdefocus.samples import photographs
+from rtdefocus.study.samples import photographs
 
 SIZE = (240, 180)                    # projector (w, h)
 

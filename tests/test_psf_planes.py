@@ -264,7 +264,7 @@ def oracle(preset: str) -> Calibration:
 
 
 def test_near_folds_band_of_two_planes_is_the_fold_line_band():
-    from rtdefocus.scores import near_fold_mask, near_folds_mask
+    from rtdefocus.study.scores import near_fold_mask, near_folds_mask
 
     cal = oracle("tilted")
     shape = (360, 480)
@@ -275,7 +275,7 @@ def test_near_folds_band_of_two_planes_is_the_fold_line_band():
 def test_near_folds_band_follows_every_fold_segment():
     """corner_ceiling: the band covers each fold where it separates its planes and stops at the
     vertex (the line of the walls' fold, extended through the ceiling, is not in it)."""
-    from rtdefocus.scores import near_folds_mask
+    from rtdefocus.study.scores import near_folds_mask
 
     cal = oracle("corner_ceiling")
     shape = (360, 480)
@@ -333,7 +333,7 @@ def test_psf_picture_shades_each_plane_and_draws_every_fold():
 
 
 def test_demo_zoom_sits_on_a_fold():
-    from rtdefocus.demo import _fold_zoom_box
+    from rtdefocus.study.demo import _fold_zoom_box
 
     cal = oracle("u_cubicle")
     rect = cal.display_rect((4, 3))

@@ -13,7 +13,7 @@ from rtdefocus.errors import InputError
 from rtdefocus.reference.blur import blur_adjoint, blur_forward
 from rtdefocus.reference.metric import DEFAULT_WEIGHTS, Metric, distance
 from rtdefocus.reference.ops import NumpyOps, scale_preconditioner
-from rtdefocus.scores import coefficient_of_variation, psnr_affine, rect_mask
+from rtdefocus.study.scores import coefficient_of_variation, psnr_affine, rect_mask
 
 H, W = 37, 53
 METRIC = Metric.ycbcr(DEFAULT_WEIGHTS)
@@ -288,7 +288,7 @@ def _coffee_figures(fabric, kind: str) -> dict:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
         from flatten_eval import evaluate
 
-        from rtdefocus.samples import photographs
+        from rtdefocus.study.samples import photographs
 
         cam, oracle = fabric
         calib = oracle if kind == "oracle" else rd.calibrate(cam)

@@ -183,7 +183,7 @@ def test_calibration_on_a_webcam_in_a_lit_room():
     measured against the ground truth (tests/setup_figures.py)."""
     from setup_figures import figures
 
-    from rtdefocus.samples import photographs
+    from rtdefocus.study.samples import photographs
 
     pc, calib = _webcam_calibration()
     assert calib.meta["radiometry"]["camera_response"] == "auto"

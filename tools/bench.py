@@ -252,8 +252,8 @@ def section_compensate(bench: Bench) -> None:
 
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.samples import photographs
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.samples import photographs
 
     photo = photographs()["astronaut"]
     for size in bench.sizes:

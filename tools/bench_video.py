@@ -17,7 +17,7 @@ Sections (``--sections``, comma-separated; default ``cost``):
            the warm start), per stage, from the medians and from the minima of the wall time
            (the load of a shared machine only adds time) and from the median CPU time of the
            worker process (all its threads), and the ratios before / after.
-``eval``   :func:`rtdefocus.eval_video.run_video_eval` (``--quick`` for the small clip).
+``eval``   :func:`rtdefocus.study.eval_video.run_video_eval` (``--quick`` for the small clip).
 
 Timings are medians of ``--repeats`` frames after ``--warmup`` (>= 3), every frame synchronised
 (``compensate()`` returns host data). Writes ``bench_results/video-<commit>-<device>.json``.
@@ -75,7 +75,7 @@ import cv2, numpy as np
 import rtdefocus
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator
-from rtdefocus.samples import photographs
+from rtdefocus.study.samples import photographs
 from rtdefocus.sim import oracle_calibration
 procam = sim.VirtualProCam("cubicle", projector_size=(w, h), camera_size=(int(w * 1.6), int(h * 1.6)))
 calib = oracle_calibration(procam)
@@ -239,7 +239,7 @@ def section_cost(args, out: dict) -> None:
 
 
 def section_eval(args, out: dict) -> None:
-    from rtdefocus.eval_video import run_video_eval
+    from rtdefocus.study.eval_video import run_video_eval
 
     result = run_video_eval(args.out / "eval_video", quick=args.quick, step=print,
                             plot=not args.no_plot)

@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 
 import rtdefocus as rd
-from rtdefocus.samples import photographs
-from rtdefocus.scores import (
+from rtdefocus.study.samples import photographs
+from rtdefocus.study.scores import (
     camera_view,
     coefficient_of_variation,
     near_folds_mask,

@@ -21,7 +21,7 @@ import numpy as np
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.samples import photographs
+from rtdefocus.study.samples import photographs
 
 
 def synced(ops, times: dict, name: str, fn):

@@ -61,8 +61,8 @@ def section_eval() -> None:
 
 
 def section_demo() -> None:
-    from rtdefocus.demo import run_demo
-    from rtdefocus.samples import demo_images
+    from rtdefocus.study.demo import run_demo
+    from rtdefocus.study.samples import demo_images
 
     images = demo_images()
     with tempfile.TemporaryDirectory() as out:

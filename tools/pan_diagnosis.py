@@ -33,9 +33,9 @@ import numpy as np
 import rtdefocus as rd
 from rtdefocus import sim
 from rtdefocus.compensate.motion import Motion
-from rtdefocus.eval_video import Segment, make_clip
 from rtdefocus.reference.warp import check_warp_inputs
-from rtdefocus.scores import camera_view, psnr, rect_mask
+from rtdefocus.study.eval_video import Segment, make_clip
+from rtdefocus.study.scores import camera_view, psnr, rect_mask
 
 MODES = ("flow", "exact", "conv0", "conv2", "offline")
 

@@ -48,7 +48,7 @@ def measure(preset: str, size: tuple[int, int] | None = None, photos: int = 2,
     seconds = time.perf_counter() - t0
     images = None
     if photos:
-        from rtdefocus.samples import photographs
+        from rtdefocus.study.samples import photographs
 
         images = dict(list(photographs().items())[:photos])
     return row(preset, {**figures(pc, cal, images), "seconds": seconds})

@@ -46,7 +46,7 @@ def _room_names(text: str) -> tuple[str, ...]:
 def cmd_demo(args) -> int:
     import time
 
-    from ..demo import run_demo
+    from ..study.demo import run_demo
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     t0 = time.perf_counter()
@@ -134,7 +134,7 @@ def _add_eval(sub):
 def _eval_options(args) -> dict:
     """``run_eval`` keyword arguments from the command line: ``--quick`` first, then whatever
     was given explicitly."""
-    from ..eval import QUICK
+    from ..study.eval import QUICK
 
     opts: dict = dict(QUICK) if args.quick else {}
     given = {"presets": args.presets, "images": args.images, "methods": args.methods,
@@ -160,7 +160,7 @@ def _numbers(text: str | None, kind):
 
 
 def cmd_eval_video(args) -> int:
-    from ..eval_video import run_video_eval
+    from ..study.eval_video import run_video_eval
 
     opts = {"quick": args.quick, "projector_size": args.size, "camera_size": args.camera_size,
             "preset": args.preset, "calibration": args.calibration, "seed": args.seed,
@@ -182,7 +182,7 @@ def cmd_eval_video(args) -> int:
 def cmd_eval(args) -> int:
     if args.video:
         return cmd_eval_video(args)
-    from ..eval import run_eval
+    from ..study.eval import run_eval
 
     with _Progress(args.quiet) as progress:
         result = run_eval(args.output, progress=progress, step=progress.step, **_eval_options(args))

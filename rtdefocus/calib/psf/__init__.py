@@ -63,7 +63,7 @@ The stage, step by step (every step only calls ``capture``):
 Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
 (6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
 :func:`calibrate_psf`, built from :class:`PsfRun` (pilot -> plans -> one measurement -> a field
-per plan), which :mod:`rtdefocus.eval_layouts` also uses to compare layouts on one measurement.
+per plan), which :mod:`rtdefocus.study.eval_layouts` also uses to compare layouts on one measurement.
 """
 
 from __future__ import annotations

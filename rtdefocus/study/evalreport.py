@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RtDefocusError
+from ..errors import RtDefocusError
 
 __all__ = ["eval_markdown", "plot_convergence", "LAYOUT_LABELS", "METHOD_SHORT"]
 

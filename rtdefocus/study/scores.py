@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .reference.lut import decode_lut, encode_lut, increasing_lut
+from ..errors import InputError
+from ..reference.lut import decode_lut, encode_lut, increasing_lut
 
 __all__ = ["psnr", "ssim", "near_fold_mask", "near_folds_mask", "rect_mask", "camera_view",
            "edge_pixels", "ImageScores",
@@ -163,7 +163,7 @@ def near_folds_mask(calib, shape: tuple[int, int], half_width: float) -> np.ndar
     -------
     (H, W) bool
     """
-    from .calib.planar import fold_segments_cam, projector_frame
+    from ..calib.planar import fold_segments_cam, projector_frame
 
     out = np.zeros(shape, bool)
     if calib.n_planes == 1:
@@ -204,7 +204,7 @@ def camera_view(procam, calib, frame: np.ndarray, sharp: bool = False) -> np.nda
     """The camera's view of ``frame`` in ``calib``'s ideal camera pixels (the lens's distortion
     taken out, :func:`rtdefocus.calib.lens.ideal_view`), so the display rectangle and the fold
     band crop what they say. ``sharp`` is the simulator's option (no blur, no noise)."""
-    from .calib.lens import ideal_view
+    from ..calib.lens import ideal_view
 
     view = procam.capture(frame, sharp=True) if sharp else procam.capture(frame)
     return ideal_view(calib, view)
