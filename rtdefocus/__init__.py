@@ -31,7 +31,7 @@ _LAZY = {
     "calibrate": ("rtdefocus.calib", "calibrate"),
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
-    "HardwareProCam": ("rtdefocus.procam", "HardwareProCam"),
+    "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
 }
 
 

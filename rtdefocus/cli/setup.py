@@ -218,10 +218,10 @@ def _report_hardware(procam, after: bool = False) -> None:
 def cmd_calibrate(args) -> int:
     import time
 
-    from .. import procam as procam_mod
     from ..calib import STAGES, calibrate
     from ..calib.camera_diagnostics import camera_diagnostics
     from ..calib.geometry_diagnostics import geometry_diagnostics
+    from ..hardware import hardware_procam as procam_mod
 
     stages = args.stages or STAGES
     if args.sim is not None:
@@ -288,7 +288,7 @@ def _add_check(sub):
 
 
 def cmd_check(args) -> int:
-    from .. import procam as procam_mod
+    from ..hardware import hardware_procam as procam_mod
     from ..hardware.preflight import FAIL, format_report, preflight
 
     with _hardware_procam(procam_mod.HardwareProCam, args) as procam:
