@@ -152,7 +152,7 @@ class HardwareProCam:
         return float(t) if t is not None else time.perf_counter()
 
     def _lock(self, exposure: float | None) -> None:
-        from .controls import apply_controls, lock_controls
+        from .camera_controls import apply_controls, lock_controls
 
         wp, hp = self.projector_size
         # Let auto-exposure settle on a white screen: the locked exposure then keeps white
