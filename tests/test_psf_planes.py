@@ -12,10 +12,10 @@ from scipy import ndimage
 
 import rtdefocus as rd
 from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.planar import fold_segments_cam, inset_frame, projector_frame
 from rtdefocus.calib.psf import RadiusModel, fold_code, fold_segments, pack_patterns, plan_samples
 from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
 from rtdefocus.calib.psf.kernel_field import interpolation_field
+from rtdefocus.planar import apply_h, fold_segments_cam, inset_frame, projector_frame
 
 SIZE = (320, 240)
 
@@ -232,7 +232,7 @@ def test_kernels_of_a_plane_without_a_gradient_are_not_averaged():
 
 # ----------------------------------------------------------------------------- radiometry, Wiener
 def test_per_plane_smoothing_and_wiener_are_label_generic():
-    from rtdefocus.calib.radiometry import _smooth_per_plane
+    from rtdefocus.calib.radiometry.stage import _smooth_per_plane
     from rtdefocus.compensate.wiener import wiener_prefilter
 
     cal = case("quadrants")
@@ -299,7 +299,7 @@ def test_near_folds_band_follows_every_fold_segment():
 
 # ----------------------------------------------------------------------------- pictures
 def test_geometry_picture_tints_each_plane_and_draws_every_fold():
-    from rtdefocus.calib.geometry_diagnostics import geometry_diagnostics
+    from rtdefocus.calib.geometry.diagnostics import geometry_diagnostics
 
     cal = oracle("corner_ceiling")
     img = geometry_diagnostics(cal).astype(int)
@@ -308,7 +308,7 @@ def test_geometry_picture_tints_each_plane_and_draws_every_fold():
     for p in range(cal.n_planes):
         ys, xs = np.nonzero(pm == p)
         c = np.array([xs.mean(), ys.mean()])
-        cx, cy = np.rint(rd.calib.planar.apply_h(cal.H_cam_from_proj[p], c[None])[0]).astype(int)
+        cx, cy = np.rint(apply_h(cal.H_cam_from_proj[p], c[None])[0]).astype(int)
         tints.append(img[cy, cx])
     for a in range(3):
         for b in range(a + 1, 3):
@@ -357,7 +357,7 @@ def measured(preset: str):
 
     from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.psf import calibrate_psf
-    from rtdefocus.calib.radiometry import calibrate_radiometry
+    from rtdefocus.calib.radiometry.stage import calibrate_radiometry
 
     procam = rd.sim.VirtualProCam(preset, projector_gamma=GAMMA)
     calib = truth_geometry(procam)

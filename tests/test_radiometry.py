@@ -1,4 +1,4 @@
-"""Radiometric calibration: projector response, ambient Γ and albedo α (calib/radiometry.py)."""
+"""Radiometric calibration: projector response, ambient Γ and albedo α (calib/radiometry/stage.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from calib_presets import GAMMA, PRESETS, calibrated, truth_geometry
 from helpers import Blind
 
 from rtdefocus.calib.capture import Capturer
-from rtdefocus.calib.radiometry import (
+from rtdefocus.calib.radiometry.stage import (
     _monotone_lut,
     calibrate_radiometry,
     fit_gamma,

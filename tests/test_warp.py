@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.planar import PlaneLayout
 from rtdefocus.errors import DeviceError, InputError
+from rtdefocus.planar import PlaneLayout
 from rtdefocus.reference.warp import warp_cv2, warp_lod, warp_maps
 
 PROJ = (318, 238)                  # odd on purpose (width, height)

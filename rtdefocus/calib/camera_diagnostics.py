@@ -8,9 +8,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..planar import distortion_scale
 from .file import Calibration
-from .lens import lens_k, observed_points
-from .planar import distortion_scale
+from .geometry.lens import lens_k, observed_points
 
 __all__ = ["camera_diagnostics", "response_panel", "distortion_panel", "skipped_panel"]
 

@@ -151,7 +151,7 @@ def _add_calibrate(sub):
 
 
 def _planes(text: str):
-    from ..calib.geometry_fit import check_planes_option
+    from ..calib.geometry.fit import check_planes_option
     from ..errors import InputError
 
     try:
@@ -220,7 +220,7 @@ def cmd_calibrate(args) -> int:
 
     from ..calib import STAGES, calibrate
     from ..calib.camera_diagnostics import camera_diagnostics
-    from ..calib.geometry_diagnostics import geometry_diagnostics
+    from ..calib.geometry.diagnostics import geometry_diagnostics
     from ..hardware import hardware_procam as procam_mod
 
     stages = args.stages or STAGES

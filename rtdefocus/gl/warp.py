@@ -13,8 +13,8 @@ import logging
 
 import numpy as np
 
-from ..calib.planar import MAX_PLANES
 from ..errors import DeviceError, InputError, InputTypeError
+from ..planar import MAX_PLANES
 from ..reference.warp import (
     check_image,
     check_warp_inputs,

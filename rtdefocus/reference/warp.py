@@ -1,7 +1,7 @@
 """The warp + stitch, plainly (docs/internals.md, "The warp"): the reference for ``gl/warp.py``.
 
 Per projector pixel (x, y) (centres at integers): plane p from the plane layout
-(:meth:`rtdefocus.calib.planar.PlaneLayout.label`: with two planes, 0 where
+(:meth:`rtdefocus.planar.PlaneLayout.label`: with two planes, 0 where
 ``fold_proj · (x, y, 1) < 0``, else 1; always 0 with one plane); camera point
 ``H_cam_from_proj[p] @ (x, y, 1)``
 (dehomogenised); input pixel through the display rect (x0, y0, w, h) for an input of W×H::
@@ -33,8 +33,8 @@ import math
 import cv2
 import numpy as np
 
-from ..calib.planar import MAX_PLANES, PlaneLayout
 from ..errors import InputError, InputTypeError
+from ..planar import MAX_PLANES, PlaneLayout
 
 __all__ = ["check_image", "check_warp_inputs", "mip_levels_needed", "mip_pyramid", "warp_cv2",
            "warp_lod", "warp_maps"]
@@ -48,7 +48,7 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
     H_cam_from_proj : array_like, (n, 3, 3) or (3, 3)
         Per-plane homographies, projector pixel -> camera pixel; n is 1 .. MAX_PLANES.
     fold_proj : PlaneLayout, array_like (3,) or None
-        The planes in projector pixels: a :class:`~rtdefocus.calib.planar.PlaneLayout`
+        The planes in projector pixels: a :class:`~rtdefocus.planar.PlaneLayout`
         (``calib.layout``), or for two planes their fold line ``a x + b y + c = 0``, plane 0
         where negative. Ignored (may be None or zeros) when n = 1.
     rect : sequence of 4 numbers

@@ -23,9 +23,9 @@ import time
 import cv2
 import numpy as np
 
-from ..calib.camera_response import linear_to_srgb, srgb_to_linear
-from ..calib.planar import canonical_line, undistort_points
+from ..calib.radiometry.camera_response import linear_to_srgb, srgb_to_linear
 from ..errors import InputError
+from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
 from .optics import BlurPlan
 from .patterns import test_pattern
@@ -113,7 +113,7 @@ class VirtualProCam:
         could not be locked): capture n is taken with gain ``exp(exposure_drift · n)`` times a
         seeded jitter of 10 % of that step; 0 (default) holds the exposure still.
     distortion : (k1, k2) radial distortion of the camera lens about the image centre, radius
-        normalised to 1 at the frame corners (:func:`rtdefocus.calib.planar.distort_points`);
+        normalised to 1 at the frame corners (:func:`rtdefocus.planar.distort_points`);
         negative k1 is barrel distortion. The truth's homographies and fold are in the ideal
         (undistorted) camera pixels.
 

@@ -27,7 +27,7 @@ from .. import sim
 from ..calib import calibrate
 from ..calib.camera_diagnostics import camera_diagnostics
 from ..calib.file import json_default
-from ..calib.geometry_diagnostics import geometry_diagnostics
+from ..calib.geometry.diagnostics import geometry_diagnostics
 from ..calib.psf import psf_diagnostics
 from ..compensate import Compensator
 from ..imageio import write_image
@@ -51,7 +51,7 @@ StepFn = Callable[[str], None]
 def _fold_zoom_box(calib, rect, reference: np.ndarray, size: int = 96) -> tuple[slice, slice]:
     """A square of camera pixels on a fold (the middle of the rect for one plane), placed
     where the sharp reference has the most detail, so the zoom shows what compensation does."""
-    from ..calib.planar import fold_segments_cam
+    from ..planar import fold_segments_cam
 
     x, y, w, h = rect
     # Candidate centres: along every fold's camera segment, else down the rect's middle.

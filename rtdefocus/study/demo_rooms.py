@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import sim
 from ..calib import calibrate
-from ..calib.geometry_diagnostics import geometry_diagnostics
+from ..calib.geometry.diagnostics import geometry_diagnostics
 from ..calib.psf import psf_diagnostics
 from ..compensate import Compensator
 from ..imageio import write_image

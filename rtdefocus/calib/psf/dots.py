@@ -11,11 +11,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import CalibrationError, InputError
+from ...planar import apply_h_per_plane
 from ..capture import Capturer
 from ..file import Calibration
-from ..lens import ideal_points, lens_k, observed_points
-from ..planar import apply_h_per_plane
-from ..radiometry import linearize_camera
+from ..geometry.lens import ideal_points, lens_k, observed_points
+from ..radiometry.stage import linearize_camera
 from .pilot import support_bound
 
 log = logging.getLogger(__name__)

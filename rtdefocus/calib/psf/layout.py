@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import CalibrationError, InputError
+from ...planar import clip_polygon, inset_frame
 from ..file import Calibration
-from ..planar import clip_polygon, inset_frame
 from .dots import _dot_geometry, dot_sizes
 from .pilot import RadiusModel, fold_code
 

@@ -35,7 +35,11 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ...errors import CalibrationError, InputError
+from ...planar import apply_h_per_plane
+from ..capture import Capturer
+from ..file import Calibration
+from ..geometry.lens import lens_k, lit_mask_observed, observed_points
 from .camera_response import (
     CAMERA_RESPONSES,
     fit_inverse_response,
@@ -43,11 +47,7 @@ from .camera_response import (
     linearize,
     split_pattern,
 )
-from .capture import Capturer
 from .exposure import check_drift, check_exposure
-from .file import Calibration
-from .lens import lens_k, lit_mask_observed, observed_points
-from .planar import apply_h_per_plane
 
 log = logging.getLogger(__name__)
 

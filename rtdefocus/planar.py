@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
+from .errors import InputError
 
 __all__ = [
     "apply_h", "apply_h_per_plane", "normalise_line", "line_eval", "tls_line", "canonical_line",

@@ -23,11 +23,11 @@ import logging
 import time
 from dataclasses import dataclass, fields
 
-from ..errors import InputError
-from ..procam import ProCam
-from .capture import Capturer
-from .file import Calibration
-from .geometry_fit import GeometryDetail, check_planes_option, fit_geometry
+from ...errors import InputError
+from ...procam import ProCam
+from ..capture import Capturer
+from ..file import Calibration
+from .fit import GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ...errors import CalibrationError, InputError
 
 log = logging.getLogger(__name__)
 
