@@ -165,7 +165,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
     gradient gets more samples, and one pattern holds them all."""
     import copy
 
-    from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
+    from rtdefocus.calib.psf.dots import dot_geometry, dot_sizes
     from rtdefocus.calib.psf.kernel_field import interpolation_field
 
     cal = copy.deepcopy(calibrated("cubicle").calib)
@@ -181,7 +181,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
         rr = np.where(wts > 0, r[idx], np.nan)
         spread = np.nanmax(rr, axis=2) - np.nanmin(rr, axis=2)
         assert spread.max() <= 0.5 + 2 * slope, f"slope {slope}: spread {spread.max():.3f}"
-        assert len(pack_patterns(plan.points, *_dot_geometry(r, dot_sizes(r)))) == 1
+        assert len(pack_patterns(plan.points, *dot_geometry(r, dot_sizes(r)))) == 1
     assert counts[1] > 1.5 * counts[0], counts
 
 

@@ -13,9 +13,9 @@ from scipy import ndimage
 import rtdefocus as rd
 from rtdefocus.calib.file import Calibration
 from rtdefocus.calib.psf import RadiusModel, fold_code, fold_segments, pack_patterns, plan_samples
-from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
+from rtdefocus.calib.psf.dots import dot_geometry, dot_sizes
 from rtdefocus.calib.psf.kernel_field import interpolation_field
-from rtdefocus.planar import apply_h, fold_segments_cam, inset_frame, projector_frame
+from rtdefocus.planar import apply_h, fold_segments_cam, projector_frame
 
 SIZE = (320, 240)
 
@@ -88,12 +88,21 @@ def test_synthetic_layouts_are_valid(name):
     cal = case(name)
     lab = cal.plane_map()
     assert sorted(np.unique(lab).tolist()) == list(range(cal.n_planes))
-    # fold_segments (the sampling's) is the layout's shared edge of the two planes
-    frame = inset_frame(SIZE, 2.0)
-    for mine, ref in zip(fold_segments(cal, 2.0), cal.layout.fold_segments(frame), strict=True):
-        assert (mine is None) == (ref is None)
-        if mine is not None:
-            np.testing.assert_allclose(mine, ref, atol=1e-6)
+    # each fold segment the sampling uses lies on its fold, inside the inset frame, and has
+    # its two planes on either side of it
+    segs = fold_segments(cal, 2.0)
+    assert len(segs) == cal.layout.n_folds
+    for j, seg in enumerate(segs):
+        if seg is None:
+            continue
+        a, b, c = cal.layout.folds[j]
+        np.testing.assert_allclose(seg @ [a, b] + c, 0.0, atol=1e-6)
+        assert (seg >= 2.0 - 1e-6).all() and (seg <= np.array(SIZE) - 3.0 + 1e-6).all()
+        mid = seg.mean(axis=0)
+        neg, pos = cal.layout.fold_planes[j]
+        off = 3.0 * np.array([a, b])
+        ends = np.stack([mid - off, mid + off])
+        assert cal.plane_of(ends[:, 0], ends[:, 1]).tolist() == [neg, pos]
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -157,7 +166,7 @@ def test_corners_at_a_vertex_share_one_pattern():
     cal = case("vertex")
     model = _affine_model(cal, MODELS["vertex"])
     plan = plan_samples(cal, model, "default")
-    sup, win = _dot_geometry(plan.radius, dot_sizes(plan.radius))
+    sup, win = dot_geometry(plan.radius, dot_sizes(plan.radius))
     assert len(pack_patterns(plan.points, sup, win)) == 1
     corners = plan.points[plan.kinds == "corner"].astype(np.float64)
     v = np.array([160.0, 90.0])

@@ -8,13 +8,13 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import RtDefocusError
-from .common import _Progress, parse_size, read_image, write_image
+from .common import Progress, parse_size, read_image, write_image
 
 log = logging.getLogger("rtdefocus")
 
 
 # --------------------------------------------------------------------------- info
-def _add_info(sub):
+def add_info(sub):
     p = sub.add_parser("info", help="list OpenCL platforms/devices and the OpenGL renderer")
     p.set_defaults(func=cmd_info)
 
@@ -69,7 +69,7 @@ def _print_monitors() -> None:
 
 
 # --------------------------------------------------------------------------- simulate
-def _add_simulate(sub):
+def add_simulate(sub):
     p = sub.add_parser("simulate", help="show a pattern or image on the virtual set-up, write "
                        "the camera's view (blurred, and sharp with --sharp)")
     p.add_argument("--scene", default="cubicle", help="simulator preset (default: cubicle)")
@@ -122,7 +122,7 @@ def _stages(text: str) -> tuple[str, ...]:
     return stages
 
 
-def _add_calibrate(sub):
+def add_calibrate(sub):
     p = sub.add_parser("calibrate", help="calibrate a projector-camera set-up (virtual or real) "
                        "and write the calibration file", epilog=CALIBRATE_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -132,7 +132,7 @@ def _add_calibrate(sub):
     src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
                      "go full-screen to --screen")
     p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
-    _add_camera_options(p)
+    add_camera_options(p)
     p.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
     from ..calib import STAGES
 
@@ -167,7 +167,7 @@ def _fourcc(text: str) -> str:
     return text.upper() if text.upper() in ("MJPG", "YUYV", "H264", "NV12") else text
 
 
-def _add_camera_options(p, capture: bool = True) -> None:
+def add_camera_options(p, capture: bool = True) -> None:
     """The camera mode (and, for captures, the timing and control) options."""
     p.add_argument("--camera-size", type=parse_size, metavar="WxH",
                    help="camera resolution to ask for, e.g. 1920x1080 (default: the driver's)")
@@ -241,7 +241,7 @@ def cmd_calibrate(args) -> int:
         source = f"camera {args.camera!r}, projector on screen {args.screen}"
     t0 = time.perf_counter()
     try:
-        with _Progress(args.quiet) as progress:
+        with Progress(args.quiet) as progress:
             calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes)
         if hasattr(procam, "drift"):
             _report_hardware(procam, after=True)
@@ -277,13 +277,13 @@ clipping, the black level, the contrast and the camera controls. Exit code 1 on 
 """
 
 
-def _add_check(sub):
+def add_check(sub):
     p = sub.add_parser("check", help="pre-flight of a real set-up before calibrating: camera mode, "
                        "monitor, latency, clipping, exposure", epilog=CHECK_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--camera", required=True, metavar="INDEX", help="camera index or stream URL")
     p.add_argument("--screen", type=int, default=0, help="projector's monitor index (default 0)")
-    _add_camera_options(p)
+    add_camera_options(p)
     p.set_defaults(func=cmd_check)
 
 

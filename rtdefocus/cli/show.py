@@ -7,7 +7,7 @@ import logging
 import sys
 
 from .common import parse_size, read_image, write_image
-from .setup import _add_camera_options
+from .setup import add_camera_options
 
 log = logging.getLogger("rtdefocus")
 
@@ -24,7 +24,7 @@ def _fraction(text: str) -> float:
     return value
 
 
-def _add_warp(sub):
+def add_warp(sub):
     p = sub.add_parser(
         "warp", help="geometry-correct an image for the projector with a calibration",
         description="Warp IMAGE into projector space so that, projected, it appears upright and "
@@ -88,7 +88,7 @@ def _brightness(text: str) -> str | float:
     return value
 
 
-def _add_play(sub):
+def add_play(sub):
     p = sub.add_parser("play", help="stream a video, a camera or slides through the compensation to "
                        "the projector (or to files)", epilog=PLAY_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -118,7 +118,7 @@ def _add_play(sub):
     p.add_argument("--stats", metavar="FILE", help="also write the run's statistics as JSON")
     p.add_argument("--cache", metavar="DIR", help="slide cache folder (default ~/.cache/rtdefocus)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
-    _add_camera_options(p, capture=False)
+    add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
     p.add_argument("--sequential", action="store_true",
                    help="decode, compensate and encode one after another on one thread (for "

@@ -6,13 +6,13 @@ import argparse
 import logging
 
 from ..errors import RtDefocusError
-from .common import _Progress, parse_size
+from .common import Progress, parse_size
 
 log = logging.getLogger("rtdefocus")
 
 
 # --------------------------------------------------------------------------- demo
-def _add_demo(sub):
+def add_demo(sub):
     p = sub.add_parser("demo", help="the whole story on the built-in virtual cubicle: calibrate, "
                        "compensate photographs and a text slide, write pictures and a table")
     p.add_argument("-o", "--output", default="demo_out", help="output folder (default demo_out)")
@@ -50,7 +50,7 @@ def cmd_demo(args) -> int:
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     t0 = time.perf_counter()
-    with _Progress(args.quiet) as progress:
+    with Progress(args.quiet) as progress:
         result = run_demo(args.output, preset=args.scene, methods=methods, seed=args.seed,
                           progress=progress, step=progress.step, surfaces=args.surfaces,
                           rooms=args.rooms)
@@ -92,7 +92,7 @@ def _names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _add_eval(sub):
+def add_eval(sub):
     p = sub.add_parser("eval", help="ablations on the virtual set-ups: presets x images x methods "
                        "x kernel layouts (and the oracle), with a convergence plot",
                        epilog=EVAL_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -131,7 +131,7 @@ def _add_eval(sub):
     p.set_defaults(func=cmd_eval)
 
 
-def _eval_options(args) -> dict:
+def eval_options(args) -> dict:
     """``run_eval`` keyword arguments from the command line: ``--quick`` first, then whatever
     was given explicitly."""
     from ..study.eval import QUICK
@@ -169,7 +169,7 @@ def cmd_eval_video(args) -> int:
                      ("offline", args.offline_iterations)):
         if val is not None:
             opts[key] = val
-    with _Progress(args.quiet) as progress:
+    with Progress(args.quiet) as progress:
         result = run_video_eval(args.output, step=progress.step, **opts)
     print()
     print(result["markdown"].rstrip())
@@ -184,8 +184,8 @@ def cmd_eval(args) -> int:
         return cmd_eval_video(args)
     from ..study.eval import run_eval
 
-    with _Progress(args.quiet) as progress:
-        result = run_eval(args.output, progress=progress, step=progress.step, **_eval_options(args))
+    with Progress(args.quiet) as progress:
+        result = run_eval(args.output, progress=progress, step=progress.step, **eval_options(args))
     # The summary; the per-preset tables are wide: they are in eval.md.
     parts = result["markdown"].split("\n## ")
     print()

@@ -80,11 +80,11 @@ from ..file import Calibration
 from ..radiometry.stage import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
-    _MIN_SNR,
+    MIN_SNR,
     Measurement,
-    _clean,
-    _dot_geometry,
+    clean_kernel,
     common_window,
+    dot_geometry,
     dot_sizes,
     equivalent_radius,
     iso_average,
@@ -260,7 +260,7 @@ class PsfRun:
         if averages is None:
             # What the first layout would get on its own: its patterns share the budget left.
             first = np.array([uniq[(int(x), int(y))] for x, y in plans[0].points])
-            n_first = len(pack_patterns(upts_a[first], *_dot_geometry(
+            n_first = len(pack_patterns(upts_a[first], *dot_geometry(
                 urad_a[first], dot_sizes(urad_a[first], o.dot_size))))
             averages = max(2, (o.psf_captures - used) // n_first)
         meas = measure_psfs(calib, capture, upts_a, urad_a, averages=averages,
@@ -313,7 +313,7 @@ class PsfRun:
         cleaned, tight = [], np.zeros(len(raw))
         for j in range(len(raw)):
             floor = _NOISE_FLOOR * noise[j] / math.sqrt(n_eff[j])
-            psf_j, _, tight[j] = _clean(raw[j].astype(np.float64), float(meas.bound[sel[j]]),
+            psf_j, _, tight[j] = clean_kernel(raw[j].astype(np.float64), float(meas.bound[sel[j]]),
                                         floor)
             cleaned.append(psf_j)
         psfs = common_window(cleaned, tight)
@@ -352,8 +352,8 @@ def _skip_reason(snr: float) -> str:
     """Why a dot was skipped, from its measured signal-to-noise ratio (the diagnostics)."""
     if not snr > 0:
         return "no light above the background"
-    if snr < _MIN_SNR:
-        return f"too faint (SNR {snr:.1f} < {_MIN_SNR:g})"
+    if snr < MIN_SNR:
+        return f"too faint (SNR {snr:.1f} < {MIN_SNR:g})"
     return "no kernel shape left after cleaning"
 
 
