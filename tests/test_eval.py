@@ -4,6 +4,7 @@ curves against plain solver runs."""
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -132,3 +133,14 @@ def test_unknown_layout_is_refused_before_any_work(tmp_path):
     with pytest.raises(InputError, match="chelsea"):
         run_eval(tmp_path, images=("kitten",))
     assert not list(tmp_path.iterdir())
+
+
+def test_the_study_wing_names_the_extra_it_needs(monkeypatch):
+    """scikit-image is in the demo extra only: without it SSIM says what to install."""
+    from rtdefocus.errors import RtDefocusError
+    from rtdefocus.study.scores import ssim
+
+    monkeypatch.setitem(sys.modules, "skimage.metrics", None)
+    a = np.zeros((16, 16, 3), np.uint8)
+    with pytest.raises(RtDefocusError, match=r"SSIM needs scikit-image: pip install 'rtdefocus\[demo\]'"):
+        ssim(a, a)

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..reference.lut import decode_lut, encode_lut, increasing_lut
+from .extras import need
 
 __all__ = ["psnr", "ssim", "near_fold_mask", "near_folds_mask", "rect_mask", "camera_view",
            "edge_pixels", "ImageScores",
@@ -109,8 +110,7 @@ def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
     mask : (H, W) bool, optional — average the SSIM map over these pixels only.
     data_range : peak value, overriding the dtype's.
     """
-    # scikit-image is an optional extra (rtdefocus[demo]) and slow to import: load it on use.
-    from skimage.metrics import structural_similarity
+    structural_similarity = need("skimage.metrics", "SSIM").structural_similarity
 
     a, b = _pair(a, b)
     channel_axis = 2 if a.ndim == 3 else None
