@@ -23,8 +23,9 @@ from rtdefocus import sim
 from rtdefocus.calib.geometry.fold import find_kink
 from rtdefocus.calib.geometry.homography import line_crossings
 from rtdefocus.calib.geometry.stage import calibrate_geometry
-from rtdefocus.calib.geometry.structured_light import LinePatterns, decode_gray, find_ridge_points
+from rtdefocus.calib.geometry.structured_light import LinePatterns, find_ridge_points
 from rtdefocus.errors import CalibrationError, InputError
+from rtdefocus.graycode import decode_gray
 from rtdefocus.planar import apply_h, largest_inscribed_rect
 
 # The three-plane rooms are held against the truth at 320x240 in test_geometry_planes.py.

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 import rtdefocus as rd
+from rtdefocus.cli.common import parse_size
 from rtdefocus.study.samples import photographs
 from rtdefocus.study.scores import (
     camera_view,
@@ -115,7 +116,7 @@ def main():
     ap.add_argument("--calib", default="both", choices=("oracle", "calibrated", "both"))
     ap.add_argument("--json", action="store_true", help="also print every figure as JSON")
     args = ap.parse_args()
-    wp, hp = (int(v) for v in args.size.split("x"))
+    wp, hp = parse_size(args.size)
     cs = args.camera_scale
     procam = rd.sim.VirtualProCam(args.preset, projector_size=(wp, hp),
                                   camera_size=(round(wp * cs), round(hp * cs)))

@@ -32,6 +32,7 @@ import numpy as np
 
 import rtdefocus as rd
 from rtdefocus import sim
+from rtdefocus.cli.common import parse_size
 from rtdefocus.compensate.motion import Motion
 from rtdefocus.reference.warp import check_warp_inputs
 from rtdefocus.study.eval_video import Segment, make_clip
@@ -93,7 +94,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--where", default=None, help="folder for where.png")
     a = ap.parse_args(argv)
-    wp, hp = (int(v) for v in a.size.lower().split("x"))
+    wp, hp = parse_size(a.size)
     cam = (int(wp * 1.6), int(hp * 1.6))
     procam = sim.VirtualProCam("cubicle", projector_size=(wp, hp), camera_size=cam, seed=0)
     calib = sim.oracle_calibration(procam)

@@ -264,11 +264,11 @@ class HardwareProCam:
         warming up): lock the camera (``lock=True``) and calibrate again."""
         if self.latency is None:
             return None
-        from .sync import gray
+        from ..imageio import to_grey
 
         wp, hp = self.projector_size
         self._prev = None
-        now = gray(self.capture(np.full((hp, wp, 3), 255, np.uint8)))
+        now = to_grey(self.capture(np.full((hp, wp, 3), 255, np.uint8)))
         lat = self.latency
         mask = lat.white - lat.black > lat.contrast / 3
         level = float(np.median(now[mask]))

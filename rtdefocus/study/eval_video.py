@@ -49,6 +49,7 @@ from ..compensate import Compensator
 from ..errors import InputError
 from ..sim import oracle_calibration
 from ..stream.controls import IterationBudget
+from .machine import machine_info
 from .scores import camera_view, psnr, rect_mask
 
 log = logging.getLogger(__name__)
@@ -385,7 +386,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                      "budgets": budgets, "fps": fps, "offline_iterations": offline,
                      "backend": cold.backend, "solver": cold.solver_name, "seed": seed,
                      "segments": [s.__dict__ for s in segments], "clip_fps": CLIP_FPS},
-        "machine": machine_description(),
+        "machine": machine_info(),
         "modes": modes, "segments": [s.name for s in segments], "summary": summary,
         "window": window_stats,
         "frames": records,
@@ -445,29 +446,3 @@ def _recovery(rs: list[dict], m: str, modes) -> int | None:
         if all(ok[k:]):
             return k
     return None
-
-
-def machine_description() -> dict:
-    """CPU, cores, load average and the OpenCL device (what the timings were taken on)."""
-    import os
-    import platform
-    info = {"cpu": platform.processor() or "unknown", "cores": os.cpu_count(),
-            "platform": platform.platform()}
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        for line in text.splitlines():
-            if line.startswith("model name"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        info["loadavg"] = os.getloadavg()
-    except OSError:
-        pass
-    try:
-        from ..cl.runtime import get_runtime
-        info["device"] = get_runtime().description
-    except Exception as exc:  # noqa: BLE001 - description only
-        info["device"] = f"none ({exc})"
-    return info
