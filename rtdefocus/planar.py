@@ -168,7 +168,7 @@ class PlaneLayout:
     A point belongs to plane p when it is on p's side of every fold that bounds p. Fitted folds
     that should meet at one vertex pass a little apart; there a point goes to the plane it is
     least outside of (:meth:`label`), so the labels always tile the frame, with no gap or
-    overlap. Two planes: one fold, plane 0 on its negative side, exactly as before (ties, on
+    overlap. Two planes: one fold, plane 0 on its negative side (ties, on
     the line itself, go to the higher plane).
     """
 

@@ -1,5 +1,5 @@
-"""Recovered vs true figures of a calibration on a simulated set-up (issues 11 and 13's
-done-when lists), shared by tests/test_webcam.py, tests/test_rooms_e2e.py, tools/webcam_table.py
+"""Recovered vs true figures of a calibration on a simulated set-up (the webcam
+and rooms figures), shared by tests/test_webcam.py, tests/test_rooms_e2e.py, tools/webcam_table.py
 and tools/preset_table.py.
 
 Every figure is measured against the simulator's ground truth, never read from the

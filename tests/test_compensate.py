@@ -1,5 +1,5 @@
 """rd.Compensator end to end on the simulator: what the camera sees of `compensate` is closer to
-the sharp reference than geometry correction alone (DESIGN.md §2-3, issue 5)."""
+the sharp reference than geometry correction alone (DESIGN.md §2-3)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Geometric calibration (issue 3): structured light, kinks, fold, homographies, layout.
+"""Geometric calibration: structured light, kinks, fold, homographies, layout.
 
 Every simulator preset is calibrated once (module fixture, default sizes, camera noise on)
 through a wrapper that exposes only ``capture`` — calibration never sees the ground truth —

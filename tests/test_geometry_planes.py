@@ -1,4 +1,4 @@
-"""Geometry of any number of planes (issue 13): how many, where their folds are, and that a
+"""Geometry of any number of planes: how many, where their folds are, and that a
 forced count or a moved set-up is not explained away as planes.
 
 The rooms (``u_cubicle``: three walls; ``corner_ceiling``: two walls and the ceiling, the folds

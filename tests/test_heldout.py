@@ -1,4 +1,4 @@
-"""A held-out check (issue 16): compensation on a set-up the defaults were not tuned on.
+"""A held-out check: compensation on a set-up the defaults were not tuned on.
 
 The defaults (iterations, weights, kernel layout) were tuned on the cubicle / tilted / pillar
 presets at 400x300, on the photographs chelsea / coffee / astronaut / rocket and the text slide,

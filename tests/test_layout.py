@@ -2,7 +2,7 @@
 
 * no import cycles between rtdefocus modules — function-level (lazy) imports included, since a
   cycle through a lazy import is still a pair of modules that cannot be understood apart;
-* no module over the size at which STYLE.md says a module should become a package;
+* no module over 600 lines, the size at which a module should become a package;
 * every third-party module the package imports is a declared dependency (a plain
   ``pip install .`` must run every command).
 """
@@ -135,7 +135,7 @@ def test_no_import_cycles():
 def test_module_size(path):
     n = len(path.read_text().splitlines())
     assert n <= MAX_LINES, (f"{path.relative_to(ROOT)} has {n} lines (> {MAX_LINES}): split it by "
-                            "concept into a package of small modules (STYLE.md)")
+                            "concept into a package of small modules")
 
 
 # Import name -> distribution name, where they differ.

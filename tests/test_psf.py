@@ -1,4 +1,4 @@
-"""Defocus kernels: dot PSFs, sampling layouts and the kernel field F (calib/psf.py)."""
+"""Defocus kernels: dot PSFs, sampling layouts and the kernel field F (calib/psf/)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_fold_claim(preset):
 
     On the convex pillar the fold is the sharpest place and both per-plane layouts sit at the
     noise floor there: since the dots are normalised by the white frame minus a smoothed
-    background (issue 11), the paper's fold-straddling dots are measured correctly too, and
+    background, the paper's fold-straddling dots are measured correctly too, and
     near the fold it measured 0.026 against the default's 0.028 (0.037 before). There the claim
     is only that the default is no worse than the paper's layout within that floor."""
     en = {key: np.median(_errors(preset, key)[1]) for key in (DEFAULT, PAPER, BLIND)}

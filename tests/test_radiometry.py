@@ -19,7 +19,7 @@ from rtdefocus.errors import CalibrationError, InputError
 
 def _interior(truth, margin: int) -> np.ndarray:
     """Pixels farther than ``margin`` from the frame edge: the white frame's blur there has
-    all its light (α = white − black is the in-focus α only there; see radiometry.py)."""
+    all its light (α = white − black is the in-focus α only there; see calib/radiometry/stage.py)."""
     m = np.zeros(truth.radius_map.shape, bool)
     m[margin:-margin, margin:-margin] = True
     return m

@@ -17,7 +17,7 @@ from rtdefocus.planar import PlaneLayout
 from rtdefocus.reference.warp import warp_cv2, warp_lod, warp_maps
 
 PROJ = (318, 238)                  # odd on purpose (width, height)
-# GL vs cv2, outside a 1-px band at the fold and at the input's border (issue 3, item 3)
+# GL vs cv2, outside a 1-px band at the fold and at the input's border
 MEAN_LSB, MAX_LSB = 0.5, 2
 
 

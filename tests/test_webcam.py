@@ -1,4 +1,4 @@
-"""Ordinary webcams in ordinary rooms (issue 11): the simulator's webcam presets, the camera's
+"""Ordinary webcams in ordinary rooms: the simulator's webcam presets, the camera's
 response recovered from captures alone, calibration on a lit, textured set-up, faint dots,
 and the calibration file's camera fields."""
 
@@ -179,7 +179,7 @@ def _webcam_calibration():
 
 def test_calibration_on_a_webcam_in_a_lit_room():
     """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
-    aperture, barrel lens: calibration passes and meets issue 11's done-when figures, each
+    aperture, barrel lens: calibration passes and meets the webcam figures, each
     measured against the ground truth (tests/setup_figures.py)."""
     from setup_figures import figures
 

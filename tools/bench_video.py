@@ -5,15 +5,15 @@ Sections (``--sections``, comma-separated; default ``cost``):
 
 ``cost``   ``Compensator.compensate()`` at the projector size (default 800x600) with the
            virtual cubicle's oracle kernels, *before* and *after* in this one run: the
-           ``--baseline`` revision (default :data:`BASELINE_REV`, the code before issue 10's cost
-           work; extracted with ``git archive`` beside the results) and this tree, one process
+           ``--baseline`` revision (default :data:`BASELINE_REV`, a tree without the
+           warm-start cost work; extracted with ``git archive`` beside the results) and this tree, one process
            per tree, kind of frame and budget (one Compensator each, as in use), frames
            interleaved round by round. ``--baseline-cl-options`` adds the baseline built with
            extra OpenCL options (``before+opts``): the share of a build flag alone. Two kinds
            of frames: ``still`` (the same photograph again: a paused video, a slide) and ``moving`` (a pan of
            :data:`PAN_PX` input px per frame: every frame new). Per tree and kind: the time per
-           iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (as issue 10 measured
-           them; a moving frame's t(0) includes the first iteration's gradient, computed with
+           iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (the cost model's
+           two terms; a moving frame's t(0) includes the first iteration's gradient, computed with
            the warm start), per stage, from the medians and from the minima of the wall time
            (the load of a shared machine only adds time) and from the median CPU time of the
            worker process (all its threads), and the ratios before / after.
@@ -47,7 +47,7 @@ sys.path.insert(0, str(REPO / "tools"))
 
 from bench import git_commit, machine_info, parse_size  # noqa: E402
 
-#: The code before issue 10's cost work (the naive warm start, the blur over the whole k x k
+#: A tree without the warm start's cost work (the naive warm start, the blur over the whole k x k
 #: window): the "before" of the cost section, run from a ``git archive`` of this revision.
 BASELINE_REV = "834bc2e"
 #: Pan of the moving frames, input pixels per frame (~9 projector px at 800x600).
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="eval: the small clip")
     ap.add_argument("--baseline", default=BASELINE_REV,
                     help=f"cost: the revision measured as 'before' (default {BASELINE_REV}, "
-                         "before issue 10's cost work; '' for none)")
+                         "without the warm start's cost work; '' for none)")
     ap.add_argument("--baseline-cl-options", default="",
                     help="cost: also run the baseline with these OpenCL build options added "
                          "(e.g. '-cl-denorms-are-zero'), as the variant 'before+opts'")

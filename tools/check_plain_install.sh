@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A plain `pip install .` (no extras) into a fresh venv runs the main commands: calibrate the
-# built-in cubicle and play a picture through the calibration. Part of `make test` (issue 14):
+# built-in cubicle and play a picture through the calibration. Part of `make test`:
 # a runtime import that only an extra brings in fails here, not on a user's machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,4 @@
-"""Figures of ``surface="flatten"`` against ``"keep"`` on the simulator (issue 12).
+"""Figures of ``surface="flatten"`` against ``"keep"`` on the simulator.
 
     python tools/flatten_eval.py [--size 240x180] [--camera-scale 1.6] [--backend numpy]
                                  [--preset fabric] [--calib oracle|calibrated|both]
@@ -11,7 +11,7 @@ Prints, with the oracle calibration (true albedo, ambient, kernels) and/or one m
   on a uniform white wall (the input resized into the display rectangle), keep vs flatten;
 * the defocus gain in the fold band (PSNR of geometry + defocus minus geometry only, each
   against its own sharp display), flatten vs keep; with ``calibrated`` also against the
-  true-kernel oracle's keep (the done-when of issue 12 asks ≥ 60 % of it).
+  true-kernel oracle's keep (the goal is ≥ 60 % of it).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Deliberately break the product, one mutation at a time, and check that a test catches it
-(issue 16). Each mutation replaces one exact snippet of one source file, runs a chosen subset
+Each mutation replaces one exact snippet of one source file, runs a chosen subset
 of the tests (``-x``: the first failure is enough), restores the file, and the table at the end
 says which test caught it (or that none did).
 

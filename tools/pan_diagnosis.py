@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Why the warm start keeps less of the offline gain on a fast pan (issue 10): a short clip of
+"""Why the warm start keeps less of the offline gain on a fast pan: a short clip of
 the ``eval --video`` kind (a still, then a pan), scored as the eval scores it.
 
 Modes, each through :meth:`rtdefocus.Compensator.compensate` frame by frame:

@@ -257,7 +257,7 @@ def _chained_curve(comp, warped, checkpoints, score, curve) -> None:
         d = info["distances"]
         run = int(info["iterations"])
         secs = info["seconds"]["solve"] if run else 0.0
-        # Each run starts by re-evaluating d at its starting P: the previous run's last value.
+        # Each run starts by re-evaluating d at its starting P: the last value of the run before it.
         curve["distances"] += d if first else d[1:]
         curve["seconds"] += ([0.0] if first else []) + _spread(t, secs, len(d) - 1)
         done += run

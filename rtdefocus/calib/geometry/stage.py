@@ -1,7 +1,7 @@
 """Geometry stage: lines -> planes (any number), their homographies and folds -> lit area.
 
-DESIGN.md §4, paper §3.1 (after Paidimarri & Chandran), extended to any number of planes
-(issue 13). Learnt only through ``capture``:
+DESIGN.md §4, paper §3.1 (after Paidimarri & Chandran), extended to any number of planes.
+Learnt only through ``capture``:
 
 1. :mod:`.structured_light` gives, for every projected line, its sub-pixel ridge in the camera.
 2. :func:`~.geometry_fit.fit_geometry` does the rest from those lines alone: kinks on each line
