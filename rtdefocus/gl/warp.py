@@ -13,6 +13,7 @@ import logging
 
 import numpy as np
 
+from ..checks import check_choice
 from ..errors import DeviceError, InputError, InputTypeError
 from ..planar import MAX_PLANES
 from ..reference.warp import (
@@ -248,8 +249,7 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
         raise InputTypeError(f"warp_image needs an rtdefocus Calibration first; got "
                              f"{type(calib).__name__} (no {', '.join(missing)}). Make one with "
                              "rd.calibrate(procam) or rd.Calibration.load('setup.npz')")
-    if backend not in ("auto", "gl", "cv2"):
-        raise InputError(f"backend must be 'auto', 'gl' or 'cv2'; got {backend!r}")
+    check_choice(backend, ("auto", "gl", "cv2"), "backend")
     img = check_image(image)
     if rect is None:
         rect = calib.display_rect((img.shape[1], img.shape[0]))
