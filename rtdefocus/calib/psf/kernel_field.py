@@ -8,8 +8,8 @@ import numpy as np
 from ...checks import check_choice
 from ...errors import CalibrationError
 from ..file import Calibration
-from .layout import SamplePlan
 from .pilot import fold_code
+from .sampling import SamplePlan
 
 __all__ = ["interpolation_field"]
 

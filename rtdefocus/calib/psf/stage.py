@@ -60,7 +60,7 @@ The stage, step by step (every step only calls ``capture``):
    edge, clamped) or bilinear on quads (``paper``). Never across a fold unless ``cross_fold``:
    a pixel blends only its own plane's samples (and, ``paper``, the ends of its plane's folds).
 
-Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
+Modules, one per step: :mod:`.pilot` (1), :mod:`.sampling` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
 (6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
 :func:`calibrate_psf`, built from :class:`PsfRun` (pilot -> plans -> one measurement -> a field
 per plan), which :mod:`rtdefocus.study.eval_layouts` also uses to compare layouts on one measurement.
@@ -93,8 +93,8 @@ from .dots import (
     pack_patterns,
 )
 from .kernel_field import interpolation_field
-from .layout import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
 from .pilot import FOLD, RadiusModel, fold_code, pilot_radius
+from .sampling import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
 
 log = logging.getLogger(__name__)
 
