@@ -15,7 +15,7 @@
 //   texel centres (i + 0.5)/W are the input's pixel centres, so GL_LINEAR is exactly the
 //   bilinear of the reference. u_labels holds the plane of each fragment, row 0 at the bottom
 //   like gl_FragCoord. MAX_PLANES comes from Python (a -D define prepended at build time) so
-//   the matrix array matches calib.planar.MAX_PLANES.
+//   the matrix array matches planar.MAX_PLANES.
 // Texture row 0 is the input's top row (uploaded as is), so t grows downwards like v.
 // Output: colour in the input's encoding; read back top row first by gl.runtime.read_rgb.
 // Draw: one full-screen triangle, 3 vertices, no attributes.

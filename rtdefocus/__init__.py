@@ -1,4 +1,5 @@
-"""rtdefocus: real-time projector defocus and geometry compensation on two-wall corners.
+"""rtdefocus: real-time projector defocus and geometry compensation on surfaces made of flat
+planes: two walls at a corner, a pillar, a room's corner with its ceiling.
 
 >>> import rtdefocus as rd
 >>> procam = rd.sim.VirtualProCam("cubicle")         # or rd.HardwareProCam(camera=0, screen=1)
@@ -31,7 +32,7 @@ _LAZY = {
     "calibrate": ("rtdefocus.calib", "calibrate"),
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
-    "HardwareProCam": ("rtdefocus.procam", "HardwareProCam"),
+    "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
 }
 
 

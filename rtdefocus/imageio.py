@@ -121,3 +121,13 @@ def fit_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     x0, y0 = (w - nw) // 2, (h - nh) // 2
     out[y0:y0 + nh, x0:x0 + nw] = resized
     return out
+
+
+def to_grey(frame: np.ndarray) -> np.ndarray:
+    """(H, W, 3) camera frame -> (H, W) float32 mean of the channels (code values 0..255)."""
+    frame = np.asarray(frame)
+    if frame.ndim == 3:
+        if frame.dtype == np.uint8:     # exact integer sum, then one float scale (fast)
+            return frame.sum(axis=2, dtype=np.uint16).astype(np.float32) * np.float32(1.0 / 3.0)
+        return frame.astype(np.float32).mean(axis=2, dtype=np.float32)
+    return frame.astype(np.float32)

@@ -36,7 +36,7 @@ def calibrated(preset: str) -> Calibrated:
 
     import rtdefocus as rd
     from rtdefocus.calib.capture import Capturer
-    from rtdefocus.eval_layouts import calibrate_psf_layouts
+    from rtdefocus.study.eval_layouts import calibrate_psf_layouts
 
     procam = rd.sim.VirtualProCam(preset, projector_gamma=GAMMA)
     t0 = time.perf_counter()

@@ -59,7 +59,7 @@ def through_warp(procam, calib, lens=None) -> tuple[np.ndarray, np.ndarray]:
     white = procam.capture(np.full_like(frame, 255), sharp=True).astype(np.float32)
     view = np.clip(255.0 * view / np.maximum(white, 1.0), 0, 255).astype(np.uint8)
     if lens is not None:
-        from rtdefocus.calib.lens import undistort_image
+        from rtdefocus.calib.geometry.lens import undistort_image
 
         view = undistort_image(view, lens, tuple(procam.camera_size))
     return corner_errors(view, rect, img.shape)

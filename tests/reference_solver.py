@@ -1,4 +1,4 @@
-"""An independent reference for the compensation solve (issue 16): the box-constrained
+"""An independent reference for the compensation solve: the box-constrained
 minimum of Eq. 4 on the simulator's true kernels, by plain projected gradient with exact line
 search run to convergence, written from DESIGN.md §3 with SciPy sparse matrices only — it
 shares no code with ``rtdefocus.compensate``, ``rtdefocus.reference`` or ``rtdefocus.cl``

@@ -1,5 +1,5 @@
-"""Recovered vs true figures of a calibration on a simulated set-up (issues 11 and 13's
-done-when lists), shared by tests/test_webcam.py, tests/test_rooms_e2e.py, tools/webcam_table.py
+"""Recovered vs true figures of a calibration on a simulated set-up (the webcam
+and rooms figures), shared by tests/test_webcam.py, tests/test_rooms_e2e.py, tools/webcam_table.py
 and tools/preset_table.py.
 
 Every figure is measured against the simulator's ground truth, never read from the
@@ -26,7 +26,7 @@ CODES = slice(13, 243)
 
 
 def _true_layout(truth):
-    from rtdefocus.calib.planar import PlaneLayout
+    from rtdefocus.planar import PlaneLayout
 
     if truth.folds_proj is None or len(truth.folds_proj) == 0:
         return None
@@ -37,7 +37,7 @@ def true_fold_segments(truth, inset: float = 0.0) -> list[np.ndarray]:
     """The part (2, 2) of each true fold that separates its two planes inside the rectangle of
     projector pixel centres, grown by ``-inset`` px beyond it when ``inset`` < 0 (folds whose
     planes do not meet there are left out)."""
-    from rtdefocus.calib.planar import inset_frame
+    from rtdefocus.planar import inset_frame
 
     layout = _true_layout(truth)
     if layout is None:
@@ -80,7 +80,7 @@ def fold_errors(calib, truth) -> list[float]:
         return []
     to_true, _ = match_planes(calib, truth)
     hp, wp = truth.radius_map.shape
-    from rtdefocus.calib.planar import inset_frame
+    from rtdefocus.planar import inset_frame
 
     out = []
     for pair, seg in zip(layout.fold_planes, layout.fold_segments(inset_frame((wp, hp), 0.0)),
@@ -104,7 +104,7 @@ def homography_rms(calib, truth, n: int = 4000) -> float:
     """RMS (camera px) over ``n`` projector points spread over the frame, farther than 8 px from
     every true fold, between where the calibration maps each (its plane's homography) and where
     the truth does (the true plane's)."""
-    from rtdefocus.calib.planar import apply_h
+    from rtdefocus.planar import apply_h
 
     hp, wp = truth.radius_map.shape
     rng = np.random.default_rng(11)
@@ -156,8 +156,8 @@ def gain_share(procam, calib, images: dict) -> tuple[float, float]:
     display rect of the calibrated geometry, camera views in ideal camera pixels; both
     compensators solve for the calibrated warp of each image."""
     from rtdefocus import Compensator
-    from rtdefocus.scores import camera_view, psnr, rect_mask
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.scores import camera_view, psnr, rect_mask
 
     geometry = Compensator(calib, method="none")
     ours = Compensator(calib, method="ycbcr")

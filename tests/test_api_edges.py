@@ -1,5 +1,5 @@
 """Public entry points answer odd calls with the project's errors (which subclass the
-builtins) and a message that names the fix, before any work is done (issue 15, item 3)."""
+builtins) and a message that names the fix, before any work is done."""
 
 from __future__ import annotations
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from rtdefocus.calib.file import FORMAT_VERSION, Calibration, content_digest
-from rtdefocus.calib.planar import PlaneLayout
 from rtdefocus.errors import CalibrationFileError, InputError
+from rtdefocus.planar import PlaneLayout
 
 WP, HP = 41, 29          # small odd projector: the file logic does not depend on size
 

@@ -1,5 +1,5 @@
 """rd.Compensator end to end on the simulator: what the camera sees of `compensate` is closer to
-the sharp reference than geometry correction alone (DESIGN.md §2-3, issue 5)."""
+the sharp reference than geometry correction alone (DESIGN.md §2-3)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from rtdefocus.errors import CalibrationFileError, InputError
 from rtdefocus.reference.blur import blur_forward_filter2d
 from rtdefocus.reference.lut import decode_lut
 from rtdefocus.reference.metric import distance
-from rtdefocus.samples import photographs, text_slide
-from rtdefocus.scores import near_folds_mask, psnr, rect_mask, ssim
 from rtdefocus.sim import oracle_calibration
+from rtdefocus.study.samples import photographs, text_slide
+from rtdefocus.study.scores import near_folds_mask, psnr, rect_mask, ssim
 
 # Smaller than the default 800x600 / 1280x960 to stay fast: the blur radii scale with the
 # projector resolution (0.8-3 px here on the cubicle), which still needs compensation.

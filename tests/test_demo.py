@@ -11,8 +11,8 @@ import pytest
 
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
-    from rtdefocus.demo import run_demo
-    from rtdefocus.samples import demo_images
+    from rtdefocus.study.demo import run_demo
+    from rtdefocus.study.samples import demo_images
 
     images = demo_images()
     chosen = {k: images[k] for k in ("chelsea", "text")}
@@ -61,8 +61,8 @@ def test_side_by_side_picture_has_all_panels(demo_result):
 
 def test_demo_surfaces_section(tmp_path):
     """``--surfaces``: the fabric side by side per photograph and the uniformity rows."""
-    from rtdefocus.demo_surfaces import SURFACE_VIEWS, run_surfaces
-    from rtdefocus.samples import demo_images
+    from rtdefocus.study.demo_surfaces import SURFACE_VIEWS, run_surfaces
+    from rtdefocus.study.samples import demo_images
 
     img = demo_images()["chelsea"]
     files, md, figures = run_surfaces(tmp_path, {"chelsea": img}, projector_size=(160, 120),

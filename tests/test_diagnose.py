@@ -1,4 +1,4 @@
-"""Causes, not symptoms (issue 15, item 4): when a stage fails, the error names the likely
+"""Causes, not symptoms: when a stage fails, the error names the likely
 cause — the set-up moved, the light changed, the camera sees only part of the projection —
 and its fix, checked on the simulator with ProCam wrappers that break one thing."""
 
@@ -86,7 +86,7 @@ def test_a_set_up_knocked_between_the_stages_is_named_as_moved(good):
 
 def test_a_camera_that_sees_most_of_the_projection_calibrates_with_a_warning():
     """With 85 % of the frame in view the kernel stage fills the lost dots from their
-    neighbours (issue 11) and calibration succeeds: the user is still told why it is not whole."""
+    neighbours and calibration succeeds: the user is still told why it is not whole."""
     calib = rd.calibrate(Cropped(_sim(), 0.85), stages=STAGES)
     (warning,) = calib.meta["warnings"]
     assert "does not see the whole projection" in warning and "right edge" in warning

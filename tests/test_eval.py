@@ -4,6 +4,7 @@ curves against plain solver runs."""
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -91,9 +92,9 @@ def test_checkpoint_curves_match_one_straight_run():
     """PG's chained checkpoints and FISTA's separate runs give the distances of one plain run."""
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.eval import convergence_curves
-    from rtdefocus.samples import photographs
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.eval import convergence_curves
+    from rtdefocus.study.samples import photographs
 
     procam = sim.VirtualProCam("cubicle", projector_size=(200, 150), camera_size=(320, 240))
     calib = oracle_calibration(procam)
@@ -111,7 +112,7 @@ def test_checkpoint_curves_match_one_straight_run():
 
 def test_eval_options_quick_then_explicit():
     from rtdefocus import cli
-    from rtdefocus.eval import QUICK
+    from rtdefocus.study.eval import QUICK
 
     args = cli.build_parser().parse_args(["eval", "--quick", "--presets", "tilted,pillar",
                                           "--size", "320x240", "--no-oracle"])
@@ -125,10 +126,21 @@ def test_eval_options_quick_then_explicit():
 
 def test_unknown_layout_is_refused_before_any_work(tmp_path):
     from rtdefocus.errors import InputError
-    from rtdefocus.eval import run_eval
+    from rtdefocus.study.eval import run_eval
 
     with pytest.raises(InputError, match="cross_fold"):
         run_eval(tmp_path, layouts=("diagonal",))
     with pytest.raises(InputError, match="chelsea"):
         run_eval(tmp_path, images=("kitten",))
     assert not list(tmp_path.iterdir())
+
+
+def test_the_study_wing_names_the_extra_it_needs(monkeypatch):
+    """scikit-image is in the demo extra only: without it SSIM says what to install."""
+    from rtdefocus.errors import RtDefocusError
+    from rtdefocus.study.scores import ssim
+
+    monkeypatch.setitem(sys.modules, "skimage.metrics", None)
+    a = np.zeros((16, 16, 3), np.uint8)
+    with pytest.raises(RtDefocusError, match=r"SSIM needs scikit-image: pip install 'rtdefocus\[demo\]'"):
+        ssim(a, a)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from rtdefocus.eval_video import QUICK_SEGMENTS, Segment, make_clip, segment_summary
+from rtdefocus.study.eval_video import QUICK_SEGMENTS, Segment, make_clip, segment_summary
 
 
 def _photos():

@@ -1,4 +1,4 @@
-"""Geometric calibration (issue 3): structured light, kinks, fold, homographies, layout.
+"""Geometric calibration: structured light, kinks, fold, homographies, layout.
 
 Every simulator preset is calibrated once (module fixture, default sizes, camera noise on)
 through a wrapper that exposes only ``capture`` — calibration never sees the ground truth —
@@ -20,12 +20,13 @@ from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.calib.fold import find_kink
-from rtdefocus.calib.geometry import calibrate_geometry
-from rtdefocus.calib.homography import line_crossings
-from rtdefocus.calib.planar import apply_h, largest_inscribed_rect
-from rtdefocus.calib.structured_light import LinePatterns, decode_gray, find_ridge_points
+from rtdefocus.calib.geometry.fold import find_kink
+from rtdefocus.calib.geometry.homography import line_crossings
+from rtdefocus.calib.geometry.stage import calibrate_geometry
+from rtdefocus.calib.geometry.structured_light import LinePatterns, find_ridge_points
 from rtdefocus.errors import CalibrationError, InputError
+from rtdefocus.graycode import decode_gray
+from rtdefocus.planar import apply_h, largest_inscribed_rect
 
 # The three-plane rooms are held against the truth at 320x240 in test_geometry_planes.py.
 PRESETS = [p for p in sim.PRESETS if p not in ("u_cubicle", "corner_ceiling")]
@@ -111,7 +112,7 @@ def test_ridge_centres_are_sub_pixel_accurate(sigma):
 def test_stage_options_and_pattern_limits():
     import inspect
 
-    from rtdefocus.calib.geometry import OPTIONS
+    from rtdefocus.calib.geometry.stage import OPTIONS
 
     params = inspect.signature(calibrate_geometry).parameters
     assert set(OPTIONS) <= set(params), "every routed option must be a keyword of the stage"
@@ -222,7 +223,7 @@ def test_display_rect_lies_in_the_lit_area(calibrated, preset):
 
 
 def test_diagnostics_picture(calibrated):
-    from rtdefocus.calib.geometry_diagnostics import geometry_diagnostics
+    from rtdefocus.calib.geometry.diagnostics import geometry_diagnostics
 
     _, calib, _ = calibrated("cubicle")
     img = geometry_diagnostics(calib)

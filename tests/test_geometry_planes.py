@@ -1,4 +1,4 @@
-"""Geometry of any number of planes (issue 13): how many, where their folds are, and that a
+"""Geometry of any number of planes: how many, where their folds are, and that a
 forced count or a moved set-up is not explained away as planes.
 
 The rooms (``u_cubicle``: three walls; ``corner_ceiling``: two walls and the ceiling, the folds
@@ -20,12 +20,12 @@ from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.calib.fold import find_kink, find_kinks
-from rtdefocus.calib.geometry import calibrate_geometry
-from rtdefocus.calib.geometry_fit import fit_geometry
-from rtdefocus.calib.planar import PlaneLayout, apply_h, projector_frame
-from rtdefocus.calib.structured_light import LinePatterns
+from rtdefocus.calib.geometry.fit import fit_geometry
+from rtdefocus.calib.geometry.fold import find_kink, find_kinks
+from rtdefocus.calib.geometry.stage import calibrate_geometry
+from rtdefocus.calib.geometry.structured_light import LinePatterns
 from rtdefocus.errors import CalibrationError, InputError
+from rtdefocus.planar import PlaneLayout, apply_h, projector_frame
 
 SIZE = {"projector_size": (320, 240), "camera_size": (480, 360)}
 ROOMS = ["u_cubicle", "corner_ceiling"]

@@ -273,7 +273,7 @@ def fake_hardware(monkeypatch):
     """`rtdefocus calibrate/check --camera 0` on the fake projector and camera."""
     import functools
 
-    import rtdefocus.procam as procam_mod
+    import rtdefocus.hardware.hardware_procam as procam_mod
 
     made = {}
 
@@ -310,7 +310,7 @@ def test_cli_check_fails_on_clipping(fake_hardware, capsys):
 
 
 def test_cli_calibrate_passes_the_camera_options(monkeypatch):
-    import rtdefocus.procam as procam_mod
+    import rtdefocus.hardware.hardware_procam as procam_mod
     from rtdefocus import cli
 
     seen = {}

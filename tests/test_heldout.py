@@ -1,4 +1,4 @@
-"""A held-out check (issue 16): compensation on a set-up the defaults were not tuned on.
+"""A held-out check: compensation on a set-up the defaults were not tuned on.
 
 The defaults (iterations, weights, kernel layout) were tuned on the cubicle / tilted / pillar
 presets at 400x300, on the photographs chelsea / coffee / astronaut / rocket and the text slide,
@@ -14,7 +14,7 @@ from helpers import blind_calibrate
 
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator
-from rtdefocus.scores import psnr, rect_mask, ssim
+from rtdefocus.study.scores import psnr, rect_mask, ssim
 
 PROJECTOR, CAMERA = (320, 240), (512, 384)
 CAMERA_GAMMA = 1.8

@@ -1,8 +1,8 @@
-"""The house rules of the package layout (issue 14), checked on the source tree:
+"""The house rules of the package layout, checked on the source tree:
 
 * no import cycles between rtdefocus modules — function-level (lazy) imports included, since a
   cycle through a lazy import is still a pair of modules that cannot be understood apart;
-* no module over the size at which STYLE.md says a module should become a package;
+* no module over 600 lines, the size at which a module should become a package;
 * every third-party module the package imports is a declared dependency (a plain
   ``pip install .`` must run every command).
 """
@@ -135,7 +135,7 @@ def test_no_import_cycles():
 def test_module_size(path):
     n = len(path.read_text().splitlines())
     assert n <= MAX_LINES, (f"{path.relative_to(ROOT)} has {n} lines (> {MAX_LINES}): split it by "
-                            "concept into a package of small modules (STYLE.md)")
+                            "concept into a package of small modules")
 
 
 # Import name -> distribution name, where they differ.
@@ -189,3 +189,57 @@ def test_every_third_party_import_is_declared():
                                                "declared nowhere") + ")")
     assert not problems, ("pyproject.toml does not declare what rtdefocus imports; a plain "
                           "`pip install .` would fail at run time: " + "; ".join(problems))
+
+
+# The study wing measures and shows the product; only its command line, the tests and the
+# tools reach into it, so the product runs (and installs) without it.
+STUDY = "rtdefocus.study"
+STUDY_USERS = {"rtdefocus.cli.study"}
+
+
+def test_nothing_outside_the_study_wing_imports_it():
+    graph = import_graph()
+    assert any(d.startswith(STUDY + ".") for d in graph["rtdefocus.cli.study"]), \
+        "the graph does not see cli.study's imports of the study wing"
+    bad = sorted(f"{m} -> {d}" for m, deps in graph.items()
+                 if not (m == STUDY or m.startswith(STUDY + ".")) and m not in STUDY_USERS
+                 for d in deps if d == STUDY or d.startswith(STUDY + "."))
+    assert not bad, "product modules import the study wing: " + "; ".join(bad)
+
+
+def underscore_imports(modules: dict[str, Path]) -> list[str]:
+    """``from x import _name`` lines (a private name taken from another module)."""
+    out = []
+    for path in modules.values():
+        where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path.name
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom):
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__"):
+                        out.append(f"{where}:{node.lineno} imports {a.name}")
+    return out
+
+
+def test_the_underscore_check_finds_a_planted_import(tmp_path):
+    bad = tmp_path / "m.py"
+    bad.write_text("from .other import _private, public\nfrom . import __version__\n")
+    ok = tmp_path / "n.py"
+    ok.write_text("from .other import public as _alias\n")
+    found = underscore_imports({"m": bad, "n": ok})
+    assert len(found) == 1 and found[0].endswith("m.py:1 imports _private")
+
+
+def test_no_module_imports_a_private_name_of_another():
+    bad = underscore_imports(_modules())
+    assert not bad, ("a module imports another's private (underscore) name; make it public or "
+                     "move it where it belongs: " + "; ".join(bad))
+
+
+def test_plane_geometry_is_a_leaf():
+    """Folds, segments, bounding folds and labels have one owner that calibration, the warps
+    and the kernels import alike; it depends on nothing of the package but errors."""
+    graph = import_graph()
+    assert graph["rtdefocus.planar"] <= {"rtdefocus.errors"}, graph["rtdefocus.planar"]
+    for user in ("rtdefocus.calib.file", "rtdefocus.gl.warp", "rtdefocus.reference.warp",
+                 "rtdefocus.calib.psf.sampling"):
+        assert "rtdefocus.planar" in graph[user], user

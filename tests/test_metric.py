@@ -426,7 +426,7 @@ def test_a_converged_solve_leaves_no_subnormal_floats(cl_runtime, variant):
     up to ~1700 of them after a call and, at 800x600 on PoCL, an iteration costs twice as much."""
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.samples import photographs
+    from rtdefocus.study.samples import photographs
 
     # (cl_runtime: skipped where no OpenCL device exists; the Compensator takes the default one)
     procam = sim.VirtualProCam("cubicle", projector_size=(160, 120), camera_size=(256, 192))

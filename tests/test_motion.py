@@ -1,4 +1,4 @@
-"""The warm start of a video (issue 10): the previous frame's correction moved along the motion,
+"""The warm start of a video: the previous frame's correction moved along the motion,
 never farther from the target than the cold start, a cut restarts, a still picture converges.
 
 Frames are given in projector space (``compensate_warped``) on a small virtual cubicle with its
@@ -13,7 +13,7 @@ import pytest
 
 import rtdefocus as rd
 from rtdefocus.compensate.motion import MotionEstimator
-from rtdefocus.samples import photographs
+from rtdefocus.study.samples import photographs
 
 SIZE = (240, 180)                    # projector (w, h)
 

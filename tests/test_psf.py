@@ -1,4 +1,4 @@
-"""Defocus kernels: dot PSFs, sampling layouts and the kernel field F (calib/psf.py)."""
+"""Defocus kernels: dot PSFs, sampling layouts and the kernel field F (calib/psf/)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_fold_claim(preset):
 
     On the convex pillar the fold is the sharpest place and both per-plane layouts sit at the
     noise floor there: since the dots are normalised by the white frame minus a smoothed
-    background (issue 11), the paper's fold-straddling dots are measured correctly too, and
+    background, the paper's fold-straddling dots are measured correctly too, and
     near the fold it measured 0.026 against the default's 0.028 (0.037 before). There the claim
     is only that the default is no worse than the paper's layout within that floor."""
     en = {key: np.median(_errors(preset, key)[1]) for key in (DEFAULT, PAPER, BLIND)}
@@ -165,7 +165,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
     gradient gets more samples, and one pattern holds them all."""
     import copy
 
-    from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
+    from rtdefocus.calib.psf.dots import dot_geometry, dot_sizes
     from rtdefocus.calib.psf.kernel_field import interpolation_field
 
     cal = copy.deepcopy(calibrated("cubicle").calib)
@@ -181,7 +181,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
         rr = np.where(wts > 0, r[idx], np.nan)
         spread = np.nanmax(rr, axis=2) - np.nanmin(rr, axis=2)
         assert spread.max() <= 0.5 + 2 * slope, f"slope {slope}: spread {spread.max():.3f}"
-        assert len(pack_patterns(plan.points, *_dot_geometry(r, dot_sizes(r)))) == 1
+        assert len(pack_patterns(plan.points, *dot_geometry(r, dot_sizes(r)))) == 1
     assert counts[1] > 1.5 * counts[0], counts
 
 

@@ -12,10 +12,10 @@ from scipy import ndimage
 
 import rtdefocus as rd
 from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.planar import fold_segments_cam, inset_frame, projector_frame
 from rtdefocus.calib.psf import RadiusModel, fold_code, fold_segments, pack_patterns, plan_samples
-from rtdefocus.calib.psf.dots import _dot_geometry, dot_sizes
+from rtdefocus.calib.psf.dots import dot_geometry, dot_sizes
 from rtdefocus.calib.psf.kernel_field import interpolation_field
+from rtdefocus.planar import apply_h, fold_segments_cam, projector_frame
 
 SIZE = (320, 240)
 
@@ -88,12 +88,21 @@ def test_synthetic_layouts_are_valid(name):
     cal = case(name)
     lab = cal.plane_map()
     assert sorted(np.unique(lab).tolist()) == list(range(cal.n_planes))
-    # fold_segments (the sampling's) is the layout's shared edge of the two planes
-    frame = inset_frame(SIZE, 2.0)
-    for mine, ref in zip(fold_segments(cal, 2.0), cal.layout.fold_segments(frame), strict=True):
-        assert (mine is None) == (ref is None)
-        if mine is not None:
-            np.testing.assert_allclose(mine, ref, atol=1e-6)
+    # each fold segment the sampling uses lies on its fold, inside the inset frame, and has
+    # its two planes on either side of it
+    segs = fold_segments(cal, 2.0)
+    assert len(segs) == cal.layout.n_folds
+    for j, seg in enumerate(segs):
+        if seg is None:
+            continue
+        a, b, c = cal.layout.folds[j]
+        np.testing.assert_allclose(seg @ [a, b] + c, 0.0, atol=1e-6)
+        assert (seg >= 2.0 - 1e-6).all() and (seg <= np.array(SIZE) - 3.0 + 1e-6).all()
+        mid = seg.mean(axis=0)
+        neg, pos = cal.layout.fold_planes[j]
+        off = 3.0 * np.array([a, b])
+        ends = np.stack([mid - off, mid + off])
+        assert cal.plane_of(ends[:, 0], ends[:, 1]).tolist() == [neg, pos]
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -157,7 +166,7 @@ def test_corners_at_a_vertex_share_one_pattern():
     cal = case("vertex")
     model = _affine_model(cal, MODELS["vertex"])
     plan = plan_samples(cal, model, "default")
-    sup, win = _dot_geometry(plan.radius, dot_sizes(plan.radius))
+    sup, win = dot_geometry(plan.radius, dot_sizes(plan.radius))
     assert len(pack_patterns(plan.points, sup, win)) == 1
     corners = plan.points[plan.kinds == "corner"].astype(np.float64)
     v = np.array([160.0, 90.0])
@@ -232,7 +241,7 @@ def test_kernels_of_a_plane_without_a_gradient_are_not_averaged():
 
 # ----------------------------------------------------------------------------- radiometry, Wiener
 def test_per_plane_smoothing_and_wiener_are_label_generic():
-    from rtdefocus.calib.radiometry import _smooth_per_plane
+    from rtdefocus.calib.radiometry.stage import _smooth_per_plane
     from rtdefocus.compensate.wiener import wiener_prefilter
 
     cal = case("quadrants")
@@ -264,7 +273,7 @@ def oracle(preset: str) -> Calibration:
 
 
 def test_near_folds_band_of_two_planes_is_the_fold_line_band():
-    from rtdefocus.scores import near_fold_mask, near_folds_mask
+    from rtdefocus.study.scores import near_fold_mask, near_folds_mask
 
     cal = oracle("tilted")
     shape = (360, 480)
@@ -275,7 +284,7 @@ def test_near_folds_band_of_two_planes_is_the_fold_line_band():
 def test_near_folds_band_follows_every_fold_segment():
     """corner_ceiling: the band covers each fold where it separates its planes and stops at the
     vertex (the line of the walls' fold, extended through the ceiling, is not in it)."""
-    from rtdefocus.scores import near_folds_mask
+    from rtdefocus.study.scores import near_folds_mask
 
     cal = oracle("corner_ceiling")
     shape = (360, 480)
@@ -299,7 +308,7 @@ def test_near_folds_band_follows_every_fold_segment():
 
 # ----------------------------------------------------------------------------- pictures
 def test_geometry_picture_tints_each_plane_and_draws_every_fold():
-    from rtdefocus.calib.geometry_diagnostics import geometry_diagnostics
+    from rtdefocus.calib.geometry.diagnostics import geometry_diagnostics
 
     cal = oracle("corner_ceiling")
     img = geometry_diagnostics(cal).astype(int)
@@ -308,7 +317,7 @@ def test_geometry_picture_tints_each_plane_and_draws_every_fold():
     for p in range(cal.n_planes):
         ys, xs = np.nonzero(pm == p)
         c = np.array([xs.mean(), ys.mean()])
-        cx, cy = np.rint(rd.calib.planar.apply_h(cal.H_cam_from_proj[p], c[None])[0]).astype(int)
+        cx, cy = np.rint(apply_h(cal.H_cam_from_proj[p], c[None])[0]).astype(int)
         tints.append(img[cy, cx])
     for a in range(3):
         for b in range(a + 1, 3):
@@ -333,7 +342,7 @@ def test_psf_picture_shades_each_plane_and_draws_every_fold():
 
 
 def test_demo_zoom_sits_on_a_fold():
-    from rtdefocus.demo import _fold_zoom_box
+    from rtdefocus.study.demo import _fold_zoom_box
 
     cal = oracle("u_cubicle")
     rect = cal.display_rect((4, 3))
@@ -357,7 +366,7 @@ def measured(preset: str):
 
     from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.psf import calibrate_psf
-    from rtdefocus.calib.radiometry import calibrate_radiometry
+    from rtdefocus.calib.radiometry.stage import calibrate_radiometry
 
     procam = rd.sim.VirtualProCam(preset, projector_gamma=GAMMA)
     calib = truth_geometry(procam)

@@ -1,4 +1,4 @@
-"""Radiometric calibration: projector response, ambient Γ and albedo α (calib/radiometry.py)."""
+"""Radiometric calibration: projector response, ambient Γ and albedo α (calib/radiometry/stage.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from calib_presets import GAMMA, PRESETS, calibrated, truth_geometry
 from helpers import Blind
 
 from rtdefocus.calib.capture import Capturer
-from rtdefocus.calib.radiometry import (
+from rtdefocus.calib.radiometry.stage import (
     _monotone_lut,
     calibrate_radiometry,
     fit_gamma,
@@ -19,7 +19,7 @@ from rtdefocus.errors import CalibrationError, InputError
 
 def _interior(truth, margin: int) -> np.ndarray:
     """Pixels farther than ``margin`` from the frame edge: the white frame's blur there has
-    all its light (α = white − black is the in-focus α only there; see radiometry.py)."""
+    all its light (α = white − black is the in-focus α only there; see calib/radiometry/stage.py)."""
     m = np.zeros(truth.radius_map.shape, bool)
     m[margin:-margin, margin:-margin] = True
     return m

@@ -31,7 +31,7 @@ def monitors(*entries):
 def rig(monkeypatch):
     """The fake projector and camera behind HardwareProCam, a fake monitor list and a fake
     camera list; ``rig["opened"]`` collects the camera index and backend each open asked for."""
-    from rtdefocus import procam as procam_mod
+    import rtdefocus.hardware.hardware_procam as procam_mod
     from rtdefocus import sim
 
     world = sim.VirtualProCam("cubicle", projector_size=P, camera_size=C, seed=0)

@@ -30,7 +30,7 @@ ROOMS = ["u_cubicle", "corner_ceiling"]
 
 @functools.cache
 def _room(preset: str):
-    from rtdefocus.samples import photographs
+    from rtdefocus.study.samples import photographs
 
     pc = rd.sim.VirtualProCam(preset, projector_gamma=2.2, projector_size=SIZE,
                               camera_size=(int(SIZE[0] * 1.6), int(SIZE[1] * 1.6)))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from rtdefocus import sim
-from rtdefocus.calib.planar import canonical_line
 from rtdefocus.errors import InputError
+from rtdefocus.planar import canonical_line
 
 ROOMS = ["u_cubicle", "corner_ceiling"]
 SMALL = {"projector_size": (320, 240), "camera_size": (480, 360)}
@@ -212,7 +212,7 @@ def test_two_and_one_plane_presets_list_their_fold(preset):
 @pytest.mark.parametrize("preset", ROOMS)
 def test_oracle_calibration_of_a_room(preset, tmp_path):
     from rtdefocus.calib.file import Calibration
-    from rtdefocus.calib.planar import points_in_polygon
+    from rtdefocus.planar import points_in_polygon
 
     pc = procam(preset)
     t = pc.truth

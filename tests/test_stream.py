@@ -431,7 +431,7 @@ def test_budget_keeps_a_repeated_frames_budget_apart():
         n = b.iterations_for(True)
         b.update(0.001 + n * 0.002, n * 0.002, n, repeat=True)
     assert b.iterations_for(True) == 9                   # (20 - 1) / 2
-    assert b.iterations_for(False) == b.iterations == 4  # (20 - 12) / 2, as before the still
+    assert b.iterations_for(False) == b.iterations == 4  # (20 - 12) / 2, the moving frames' budget
     assert b.frame_seconds(1, repeat=False) == pytest.approx(0.014, rel=0.05)
 
 

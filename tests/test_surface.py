@@ -1,5 +1,5 @@
 """surface="flatten": the albedo as a residual scale (kernels/metric.cl HAS_SCALE, NumpyOps),
-the target (b I − E) / A, the fabric preset of the simulator, and the outcome on it (issue 12)."""
+the target (b I − E) / A, the fabric preset of the simulator, and the outcome on it."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from rtdefocus.errors import InputError
 from rtdefocus.reference.blur import blur_adjoint, blur_forward
 from rtdefocus.reference.metric import DEFAULT_WEIGHTS, Metric, distance
 from rtdefocus.reference.ops import NumpyOps, scale_preconditioner
-from rtdefocus.scores import coefficient_of_variation, psnr_affine, rect_mask
+from rtdefocus.study.scores import coefficient_of_variation, psnr_affine, rect_mask
 
 H, W = 37, 53
 METRIC = Metric.ycbcr(DEFAULT_WEIGHTS)
@@ -228,7 +228,7 @@ def test_keep_is_the_default_and_unchanged(fabric):
 
 
 def test_flatten_makes_a_grey_field_uniform(fabric):
-    """Done-when of issue 12: CoV of a flat grey field ≥ 4× lower with flatten (measured 5.6×)."""
+    """CoV of a flat grey field ≥ 4× lower with flatten (measured 5.6×)."""
     cam, calib = fabric
     grey = np.full((90, 120, 3), 128, np.uint8)
     mask = _inset(calib, (120, 90))
@@ -288,7 +288,7 @@ def _coffee_figures(fabric, kind: str) -> dict:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
         from flatten_eval import evaluate
 
-        from rtdefocus.samples import photographs
+        from rtdefocus.study.samples import photographs
 
         cam, oracle = fabric
         calib = oracle if kind == "oracle" else rd.calibrate(cam)

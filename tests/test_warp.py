@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.planar import PlaneLayout
 from rtdefocus.errors import DeviceError, InputError
+from rtdefocus.planar import PlaneLayout
 from rtdefocus.reference.warp import warp_cv2, warp_lod, warp_maps
 
 PROJ = (318, 238)                  # odd on purpose (width, height)
-# GL vs cv2, outside a 1-px band at the fold and at the input's border (issue 3, item 3)
+# GL vs cv2, outside a 1-px band at the fold and at the input's border
 MEAN_LSB, MAX_LSB = 0.5, 2
 
 
@@ -298,8 +298,8 @@ BAD = {
     "zeros": (np.zeros((1, 3, 3)), None, RECT, "singular"),
     "three-planes-one-fold": (np.stack([H2[0]] * 3), FOLD, RECT, "PlaneLayout"),
     "nine-planes": (np.stack([np.eye(3)] * 9), None, RECT, r"n = 1 \.\. 8"),
-    "no-fold": (H2, None, RECT, "fold_proj"),
-    "zero-fold": (H2, np.zeros(3), RECT, "fold_proj"),
+    "no-fold": (H2, None, RECT, "planes"),
+    "zero-fold": (H2, np.zeros(3), RECT, "planes"),
     "empty-rect": (H2, FOLD, (0, 0, 0, 10), "rect"),
     "nan-rect": (H2, FOLD, (0, np.nan, 10, 10), "rect"),
 }

@@ -1,4 +1,4 @@
-"""Ordinary webcams in ordinary rooms (issue 11): the simulator's webcam presets, the camera's
+"""Ordinary webcams in ordinary rooms: the simulator's webcam presets, the camera's
 response recovered from captures alone, calibration on a lit, textured set-up, faint dots,
 and the calibration file's camera fields."""
 
@@ -12,7 +12,10 @@ import pytest
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.calib.camera_response import (
+from rtdefocus.calib.file import Calibration
+from rtdefocus.calib.psf.sampling import SamplePlan
+from rtdefocus.calib.psf.stage import fill_skipped
+from rtdefocus.calib.radiometry.camera_response import (
     fit_inverse_response,
     known_response,
     linear_to_srgb,
@@ -20,12 +23,9 @@ from rtdefocus.calib.camera_response import (
     split_pattern,
     srgb_to_linear,
 )
-from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.planar import apply_h, distort_points, undistort_points
-from rtdefocus.calib.psf import fill_skipped
-from rtdefocus.calib.psf.layout import SamplePlan
-from rtdefocus.calib.radiometry import DEFAULT_LEVELS, ramp_pattern
+from rtdefocus.calib.radiometry.stage import DEFAULT_LEVELS, ramp_pattern
 from rtdefocus.errors import CalibrationError, InputError
+from rtdefocus.planar import apply_h, distort_points, undistort_points
 
 SMALL = {"projector_size": (320, 240), "camera_size": (480, 360)}
 # Inverse-response error is measured over codes 0.05..0.95 of full scale (the issue's range).
@@ -179,11 +179,11 @@ def _webcam_calibration():
 
 def test_calibration_on_a_webcam_in_a_lit_room():
     """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
-    aperture, barrel lens: calibration passes and meets issue 11's done-when figures, each
+    aperture, barrel lens: calibration passes and meets the webcam figures, each
     measured against the ground truth (tests/setup_figures.py)."""
     from setup_figures import figures
 
-    from rtdefocus.samples import photographs
+    from rtdefocus.study.samples import photographs
 
     pc, calib = _webcam_calibration()
     assert calib.meta["radiometry"]["camera_response"] == "auto"
@@ -205,7 +205,7 @@ def _radiometry(**kw):
     from calib_presets import truth_geometry
 
     from rtdefocus.calib.capture import Capturer
-    from rtdefocus.calib.radiometry import calibrate_radiometry
+    from rtdefocus.calib.radiometry.stage import calibrate_radiometry
 
     pc = sim.VirtualProCam("webcam", distortion=(0.0, 0.0), **kw, **SMALL)
     calib = truth_geometry(pc)
@@ -304,7 +304,7 @@ def test_calibration_file_keeps_the_camera_and_reads_version_1(tmp_path):
 # --------------------------------------------------------------------------- lens distortion
 def test_radial_k1_from_straight_lines_on_each_plane():
     """Crossings of a plane seen through a barrel lens: k1 is what makes them a homography."""
-    from rtdefocus.calib.homography import estimate_radial_k1
+    from rtdefocus.calib.geometry.homography import estimate_radial_k1
 
     size = (640, 480)
     gx, gy = np.meshgrid(np.arange(20, 400, 25.0), np.arange(20, 300, 25.0))
@@ -321,7 +321,7 @@ def test_radial_k1_from_straight_lines_on_each_plane():
 def test_radial_k1_and_k2_together_from_straight_lines():
     """A lens with a k2 term: k1 alone is biased and leaves a misfit; the two-term fit
     recovers both and straightens the crossings."""
-    from rtdefocus.calib.homography import estimate_radial_k1, estimate_radial_k12
+    from rtdefocus.calib.geometry.homography import estimate_radial_k1, estimate_radial_k12
 
     size = (640, 480)
     gx, gy = np.meshgrid(np.arange(10, 400, 20.0), np.arange(10, 300, 20.0))
@@ -336,7 +336,7 @@ def test_radial_k1_and_k2_together_from_straight_lines():
 
 @pytest.mark.parametrize("k1", [-0.05, 0.0])
 def test_geometry_reports_the_lens_k1(k1):
-    from rtdefocus.calib.geometry import calibrate_geometry
+    from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", distortion=(k1, 0.0), **SMALL)
     d = calibrate_geometry(pc).meta["geometry"]["distortion"]
@@ -348,7 +348,7 @@ def test_geometry_reports_the_lens_k1(k1):
 def test_geometry_fits_k2_when_it_explains_the_misfit():
     """A lens with k2 = -0.05: k1 alone leaves ~40 % more misfit than k1 and k2 together, so
     the stage keeps both, recovers them, and takes them out (the calibration's lens)."""
-    from rtdefocus.calib.geometry import calibrate_geometry
+    from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", distortion=(-0.03, -0.05), **SMALL)
     cal = calibrate_geometry(pc)
@@ -377,7 +377,7 @@ def _homography_error(calib, truth) -> float:
 def test_geometry_is_in_ideal_camera_pixels():
     """With the lens taken out, the homographies match the truth's (ideal pixels) to a tenth of
     a pixel; left in (undistort=False) they are off by more than half a pixel."""
-    from rtdefocus.calib.geometry import calibrate_geometry
+    from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", **SMALL)
     fixed = calibrate_geometry(pc)
@@ -390,8 +390,8 @@ def test_geometry_is_in_ideal_camera_pixels():
 
 
 def test_undistorted_line_keeps_its_gaps_and_lies_on_the_ideal_curve():
-    from rtdefocus.calib.lens import undistort_line
-    from rtdefocus.calib.structured_light import DetectedLine
+    from rtdefocus.calib.geometry.lens import undistort_line
+    from rtdefocus.calib.geometry.structured_light import DetectedLine
 
     size, k = (480, 360), (-0.05, 0.0)
     ideal_y = lambda x: 40.0 + 0.1 * x                                   # noqa: E731
@@ -408,7 +408,7 @@ def test_undistorted_line_keeps_its_gaps_and_lies_on_the_ideal_curve():
 
 
 def test_undistort_image_puts_a_point_where_the_model_says():
-    from rtdefocus.calib.lens import ideal_view, undistort_image
+    from rtdefocus.calib.geometry.lens import ideal_view, undistort_image
 
     size, k = (480, 360), (-0.05, 0.0)
     ideal = np.array([[60.0, 50.0], [400.0, 300.0], [240.0, 180.0]])
@@ -437,7 +437,7 @@ def test_camera_picture_shows_responses_lens_and_skipped_dots():
         distortion_panel,
         skipped_panel,
     )
-    from rtdefocus.calib.psf import _skip_reason
+    from rtdefocus.calib.psf.stage import _skip_reason
 
     calib = sim.oracle_calibration(sim.VirtualProCam("webcam", **SMALL))
     assert np.allclose(calib.camera_distortion, (-0.05, 0.0))
@@ -465,8 +465,8 @@ def test_a_lens_that_fails_the_first_fit_is_measured_by_the_rough_one():
     fit on the undistorted detection succeeds; with no lens to blame the first error stands."""
     from types import SimpleNamespace
 
-    from rtdefocus.calib.lens import fit_with_lens
-    from rtdefocus.calib.structured_light import DetectedLine, LineDetection
+    from rtdefocus.calib.geometry.lens import fit_with_lens
+    from rtdefocus.calib.geometry.structured_light import DetectedLine, LineDetection
 
     size = (480, 360)
     frame = np.zeros((360, 480), np.float32)

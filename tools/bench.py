@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import statistics
 import subprocess
@@ -45,6 +44,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from rtdefocus.cli.common import parse_size  # noqa: E402
 from rtdefocus.reference.blur import (  # noqa: E402
     blur_adjoint,
     blur_adjoint_filter2d,
@@ -52,6 +52,7 @@ from rtdefocus.reference.blur import (  # noqa: E402
     blur_forward_filter2d,
     synthetic_field,
 )
+from rtdefocus.study.machine import machine_info  # noqa: E402
 
 # The paper's own figure for one iteration at 800x600 on one core (for the "iteration" section).
 PAPER_ITERATION_S = (10.0, 12.0)
@@ -252,8 +253,8 @@ def section_compensate(bench: Bench) -> None:
 
     from rtdefocus import sim
     from rtdefocus.compensate import Compensator
-    from rtdefocus.samples import photographs
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.samples import photographs
 
     photo = photographs()["astronaut"]
     for size in bench.sizes:
@@ -293,35 +294,6 @@ SECTIONS = {
 
 
 # ------------------------------------------------------------------------------ report, files
-def machine_info(runtime) -> dict:
-    cpu = platform.processor() or "unknown"
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        m = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
-        cpu = m.group(1).strip() if m else cpu
-    except OSError:
-        pass
-    info = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
-            "numpy": np.__version__, "platform": platform.platform()}
-    try:
-        info["loadavg_start"] = os.getloadavg()
-    except OSError:
-        pass
-    try:
-        import cv2
-        info["opencv"] = cv2.__version__
-    except ImportError:
-        pass
-    if runtime is not None:
-        dev = runtime.device
-        info.update(device=runtime.description, device_type="GPU" if runtime.is_gpu else "CPU",
-                    driver=dev.driver_version, opencl=dev.platform.version,
-                    compute_units=dev.max_compute_units,
-                    max_work_group_size=dev.max_work_group_size,
-                    local_mem_bytes=dev.local_mem_size)
-    return info
-
-
 def git_commit() -> str:
     try:
         rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO,
@@ -362,13 +334,6 @@ def summary_table(rows: list[dict]) -> str:
         lines.append(f"{op:8s} {size:>10s} {radius:4g} {fmt(cpu)} {fmt(gpu)} {fmt(ref)} "
                      f"{fmt(f2d, 12)} {ratio(ref)} {ratio(f2d):>10s}")
     return "\n".join(lines)
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", text.strip())
-    if not m:
-        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT (e.g. 800x600); got {text!r}")
-    return int(m.group(1)), int(m.group(2))
 
 
 def main(argv=None) -> int:
@@ -413,7 +378,7 @@ def main(argv=None) -> int:
                   quick=args.quick, runtime=runtime)
     info = machine_info(runtime)
     print(f"machine: {info['cpu']}, {info['cores']} cores; device: {info.get('device')} "
-          f"[{info.get('opencl')}]; load average {info.get('loadavg_start')}")
+          f"[{info.get('opencl')}]; load average {info.get('loadavg')}")
     t0 = time.perf_counter()
     for name in names:
         print(f"[{name}]", flush=True)

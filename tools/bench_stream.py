@@ -1,6 +1,6 @@
 #!/usr/bin/env python
-"""The frame loop's timing and memory figures (moved out of tests/test_stream.py, issue 16:
-the tests keep the behaviour — order, drops, cache hits, no growth as a ratio — and this
+"""The frame loop's timing and memory figures (the tests in
+tests/test_stream.py keep the behaviour — order, drops, cache hits, no growth as a ratio — and this
 reports the numbers that depend on the machine).
 
 Rows: a live source ~4x faster than the solver (wall time against the stream's length, 95th

@@ -5,19 +5,19 @@ Sections (``--sections``, comma-separated; default ``cost``):
 
 ``cost``   ``Compensator.compensate()`` at the projector size (default 800x600) with the
            virtual cubicle's oracle kernels, *before* and *after* in this one run: the
-           ``--baseline`` revision (default :data:`BASELINE_REV`, the code before issue 10's cost
-           work; extracted with ``git archive`` beside the results) and this tree, one process
+           ``--baseline`` revision (default :data:`BASELINE_REV`, a tree without the
+           warm-start cost work; extracted with ``git archive`` beside the results) and this tree, one process
            per tree, kind of frame and budget (one Compensator each, as in use), frames
            interleaved round by round. ``--baseline-cl-options`` adds the baseline built with
            extra OpenCL options (``before+opts``): the share of a build flag alone. Two kinds
            of frames: ``still`` (the same photograph again: a paused video, a slide) and ``moving`` (a pan of
            :data:`PAN_PX` input px per frame: every frame new). Per tree and kind: the time per
-           iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (as issue 10 measured
-           them; a moving frame's t(0) includes the first iteration's gradient, computed with
+           iteration ``(t(8) - t(0)) / 8`` and the fixed part ``t(0)`` (the cost model's
+           two terms; a moving frame's t(0) includes the first iteration's gradient, computed with
            the warm start), per stage, from the medians and from the minima of the wall time
            (the load of a shared machine only adds time) and from the median CPU time of the
            worker process (all its threads), and the ratios before / after.
-``eval``   :func:`rtdefocus.eval_video.run_video_eval` (``--quick`` for the small clip).
+``eval``   :func:`rtdefocus.study.eval_video.run_video_eval` (``--quick`` for the small clip).
 
 Timings are medians of ``--repeats`` frames after ``--warmup`` (>= 3), every frame synchronised
 (``compensate()`` returns host data). Writes ``bench_results/video-<commit>-<device>.json``.
@@ -47,7 +47,7 @@ sys.path.insert(0, str(REPO / "tools"))
 
 from bench import git_commit, machine_info, parse_size  # noqa: E402
 
-#: The code before issue 10's cost work (the naive warm start, the blur over the whole k x k
+#: A tree without the warm start's cost work (the naive warm start, the blur over the whole k x k
 #: window): the "before" of the cost section, run from a ``git archive`` of this revision.
 BASELINE_REV = "834bc2e"
 #: Pan of the moving frames, input pixels per frame (~9 projector px at 800x600).
@@ -75,7 +75,7 @@ import cv2, numpy as np
 import rtdefocus
 from rtdefocus import sim
 from rtdefocus.compensate import Compensator
-from rtdefocus.samples import photographs
+from rtdefocus.study.samples import photographs
 from rtdefocus.sim import oracle_calibration
 procam = sim.VirtualProCam("cubicle", projector_size=(w, h), camera_size=(int(w * 1.6), int(h * 1.6)))
 calib = oracle_calibration(procam)
@@ -239,7 +239,7 @@ def section_cost(args, out: dict) -> None:
 
 
 def section_eval(args, out: dict) -> None:
-    from rtdefocus.eval_video import run_video_eval
+    from rtdefocus.study.eval_video import run_video_eval
 
     result = run_video_eval(args.out / "eval_video", quick=args.quick, step=print,
                             plot=not args.no_plot)
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="eval: the small clip")
     ap.add_argument("--baseline", default=BASELINE_REV,
                     help=f"cost: the revision measured as 'before' (default {BASELINE_REV}, "
-                         "before issue 10's cost work; '' for none)")
+                         "without the warm start's cost work; '' for none)")
     ap.add_argument("--baseline-cl-options", default="",
                     help="cost: also run the baseline with these OpenCL build options added "
                          "(e.g. '-cl-denorms-are-zero'), as the variant 'before+opts'")

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # A plain install (no extras) of the built wheel into a fresh venv runs the main commands:
-# calibrate the built-in cubicle and play a picture and a PDF deck through the calibration. Part of `make
-# test`: a runtime import that only an extra brings in, or a file the wheel does not ship,
+# calibrate the built-in cubicle and play a picture and a PDF deck through the calibration. Part
+# of `make test`: a runtime import that only an extra brings in, or a file the wheel does not ship,
 # fails here, not on a user's machine. (`pip install .` builds the same wheel.)
 set -euo pipefail
 cd "$(dirname "$0")/.."

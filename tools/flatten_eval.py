@@ -1,4 +1,4 @@
-"""Figures of ``surface="flatten"`` against ``"keep"`` on the simulator (issue 12).
+"""Figures of ``surface="flatten"`` against ``"keep"`` on the simulator.
 
     python tools/flatten_eval.py [--size 240x180] [--camera-scale 1.6] [--backend numpy]
                                  [--preset fabric] [--calib oracle|calibrated|both]
@@ -11,7 +11,7 @@ Prints, with the oracle calibration (true albedo, ambient, kernels) and/or one m
   on a uniform white wall (the input resized into the display rectangle), keep vs flatten;
 * the defocus gain in the fold band (PSNR of geometry + defocus minus geometry only, each
   against its own sharp display), flatten vs keep; with ``calibrated`` also against the
-  true-kernel oracle's keep (the done-when of issue 12 asks ≥ 60 % of it).
+  true-kernel oracle's keep (the goal is ≥ 60 % of it).
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ import cv2
 import numpy as np
 
 import rtdefocus as rd
-from rtdefocus.samples import photographs
-from rtdefocus.scores import (
+from rtdefocus.cli.common import parse_size
+from rtdefocus.study.samples import photographs
+from rtdefocus.study.scores import (
     camera_view,
     coefficient_of_variation,
     near_folds_mask,
@@ -115,7 +116,7 @@ def main():
     ap.add_argument("--calib", default="both", choices=("oracle", "calibrated", "both"))
     ap.add_argument("--json", action="store_true", help="also print every figure as JSON")
     args = ap.parse_args()
-    wp, hp = (int(v) for v in args.size.split("x"))
+    wp, hp = parse_size(args.size)
     cs = args.camera_scale
     procam = rd.sim.VirtualProCam(args.preset, projector_size=(wp, hp),
                                   camera_size=(round(wp * cs), round(hp * cs)))

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # tools/gpu_check.sh [--dry-run] [OUT_DIR]
 #
-# One short run on a machine with an NVIDIA GPU and no network (issue 10, item 5):
+# One short run on a machine with an NVIDIA GPU and no network:
 #   1. Python: the tree's .venv if it imports rtdefocus and pyopencl, else a fresh venv
 #      installed offline from wheels/ (carried with the tree; see below);
 #   2. the NVIDIA OpenCL ICD file /etc/OpenCL/vendors/nvidia.icd (libnvidia-opencl.so.1) if the

@@ -21,7 +21,8 @@ import numpy as np
 
 import rtdefocus as rd
 from rtdefocus import sim
-from rtdefocus.samples import photographs
+from rtdefocus.cli.common import parse_size
+from rtdefocus.study.samples import photographs
 
 
 def synced(ops, times: dict, name: str, fn):
@@ -43,7 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--precondition", default="colour+spatial",
                     choices=("colour+spatial", "colour", "none"))
     a = ap.parse_args(argv)
-    wp, hp = (int(v) for v in a.size.lower().split("x"))
+    wp, hp = parse_size(a.size)
     procam = sim.VirtualProCam("cubicle", projector_size=(wp, hp),
                                camera_size=(int(wp * 1.6), int(hp * 1.6)))
     calib = sim.oracle_calibration(procam)

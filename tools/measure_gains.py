@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Measure the compensation gains the quality tests guard, in the tests' own settings, so that
-their thresholds can be set from measurement with a stated margin (issue 16).
+their thresholds can be set from measurement with a stated margin.
 
 Sections (``--sections``, comma-separated):
 
@@ -61,8 +61,8 @@ def section_eval() -> None:
 
 
 def section_demo() -> None:
-    from rtdefocus.demo import run_demo
-    from rtdefocus.samples import demo_images
+    from rtdefocus.study.demo import run_demo
+    from rtdefocus.study.samples import demo_images
 
     images = demo_images()
     with tempfile.TemporaryDirectory() as out:

@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Deliberately break the product, one mutation at a time, and check that a test catches it
-(issue 16). Each mutation replaces one exact snippet of one source file, runs a chosen subset
+Each mutation replaces one exact snippet of one source file, runs a chosen subset
 of the tests (``-x``: the first failure is enough), restores the file, and the table at the end
 says which test caught it (or that none did).
 
@@ -41,7 +41,7 @@ MUTATIONS = [
              "self._lut = np.tile(np.linspace(0, 1, 256, dtype=np.float32), (3, 1))",
              ("tests/test_heldout.py", "tests/test_compensate.py", "tests/test_demo.py")),
     # The solver's kernels are made from the raw least-squares kernels (``Measurement.raw``,
-    # averaged along lines of equal blur, then cleaned: calib/psf/__init__.py), not from the
+    # averaged along lines of equal blur, then cleaned: calib/psf/stage.py), not from the
     # per-dot cleaned ``Measurement.psfs``: the flip goes where ``raw`` is filled.
     Mutation("flip-psf", "rtdefocus/calib/psf/dots.py",
              "            raw[i] = k / energy\n", "            raw[i] = (k / energy)[::-1, ::-1]\n",

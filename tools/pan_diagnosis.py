@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Why the warm start keeps less of the offline gain on a fast pan (issue 10): a short clip of
+"""Why the warm start keeps less of the offline gain on a fast pan: a short clip of
 the ``eval --video`` kind (a still, then a pan), scored as the eval scores it.
 
 Modes, each through :meth:`rtdefocus.Compensator.compensate` frame by frame:
@@ -32,10 +32,11 @@ import numpy as np
 
 import rtdefocus as rd
 from rtdefocus import sim
+from rtdefocus.cli.common import parse_size
 from rtdefocus.compensate.motion import Motion
-from rtdefocus.eval_video import Segment, make_clip
 from rtdefocus.reference.warp import check_warp_inputs
-from rtdefocus.scores import camera_view, psnr, rect_mask
+from rtdefocus.study.eval_video import Segment, make_clip
+from rtdefocus.study.scores import camera_view, psnr, rect_mask
 
 MODES = ("flow", "exact", "conv0", "conv2", "offline")
 
@@ -93,7 +94,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--where", default=None, help="folder for where.png")
     a = ap.parse_args(argv)
-    wp, hp = (int(v) for v in a.size.lower().split("x"))
+    wp, hp = parse_size(a.size)
     cam = (int(wp * 1.6), int(hp * 1.6))
     procam = sim.VirtualProCam("cubicle", projector_size=(wp, hp), camera_size=cam, seed=0)
     calib = sim.oracle_calibration(procam)

@@ -29,6 +29,7 @@ from helpers import Blind  # noqa: E402
 from setup_figures import HEADER, figures, row  # noqa: E402
 
 import rtdefocus as rd  # noqa: E402
+from rtdefocus.cli.common import parse_size  # noqa: E402
 
 PLAIN = ("cubicle", "pillar", "flat", "tilted", "offcenter", "u_cubicle", "corner_ceiling")
 
@@ -48,19 +49,10 @@ def measure(preset: str, size: tuple[int, int] | None = None, photos: int = 2,
     seconds = time.perf_counter() - t0
     images = None
     if photos:
-        from rtdefocus.samples import photographs
+        from rtdefocus.study.samples import photographs
 
         images = dict(list(photographs().items())[:photos])
     return row(preset, {**figures(pc, cal, images), "seconds": seconds})
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """``"WxH"`` -> (W, H)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 800x600; got {text!r}") from None
-    return w, h
 
 
 def main() -> None:

@@ -33,15 +33,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rtdefocus import sim  # noqa: E402
+from rtdefocus.cli.common import parse_size  # noqa: E402
 from rtdefocus.compensate import Compensator  # noqa: E402
-from rtdefocus.samples import photographs, text_slide  # noqa: E402
-from rtdefocus.scores import camera_view, near_folds_mask, psnr, rect_mask, ssim  # noqa: E402
 from rtdefocus.sim import oracle_calibration  # noqa: E402
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    w, h = (int(v) for v in text.lower().split("x"))
-    return w, h
+from rtdefocus.study.samples import photographs, text_slide  # noqa: E402
+from rtdefocus.study.scores import camera_view, near_folds_mask, psnr, rect_mask, ssim  # noqa: E402
 
 
 class Scene:

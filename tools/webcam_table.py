@@ -1,4 +1,4 @@
-"""Recovered vs true values of calibration on the simulator's webcam presets (issue 11).
+"""Recovered vs true values of calibration on the simulator's webcam presets.
 
     .venv/bin/python tools/webcam_table.py webcam webcam_pillar webcam_tilted webcam_offcenter
 

@@ -15,11 +15,11 @@ from ..errors import CalibrationError, InputError, InputTypeError
 from ..procam import ProCam
 from .capture import Capturer, ProgressFn
 from .diagnose import explain, view_warning
-from .exposure import check_geometry_drift
 from .file import Calibration
-from .geometry import GeometryOptions, calibrate_geometry
+from .geometry.stage import GeometryOptions, calibrate_geometry
 from .psf import PsfOptions, calibrate_psf
-from .radiometry import RadiometryOptions, calibrate_radiometry
+from .radiometry.exposure import check_geometry_drift
+from .radiometry.stage import RadiometryOptions, calibrate_radiometry
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""A picture of what calibration learnt about the camera and the light (issue 11): the camera's
+"""A picture of what calibration learnt about the camera and the light: the camera's
 and the projector's response curves, the lens's distortion grid, and the PSF dots that were
 skipped and why (:func:`camera_diagnostics`). OpenCV drawing only, like the other pictures of
 the calibration report, so it needs no optional extra."""
@@ -8,9 +8,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..planar import distortion_scale
 from .file import Calibration
-from .lens import lens_k, observed_points
-from .planar import distortion_scale
+from .geometry.lens import lens_k, observed_points
 
 __all__ = ["camera_diagnostics", "response_panel", "distortion_panel", "skipped_panel"]
 

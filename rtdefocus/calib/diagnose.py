@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..errors import CalibrationError
+from ..imageio import to_grey
 from .capture import Capturer
 
 log = logging.getLogger(__name__)
@@ -49,10 +50,6 @@ class Cause:
     details: dict
 
 
-def _gray(frame: np.ndarray) -> np.ndarray:
-    return np.asarray(frame, np.float32).mean(axis=2)
-
-
 def _lit(white: np.ndarray, black: np.ndarray) -> np.ndarray:
     diff = white - black
     hi = float(np.percentile(diff, 99.5))
@@ -72,12 +69,12 @@ def find_cause(capture: Capturer) -> Cause | None:
     wp, hp = capture.procam.projector_size
     ref_white, ref_black = capture.first_white, capture.first_black
     capture.begin("diagnose", 1 if ref_black is not None else 2)
-    white = _gray(capture(np.full((hp, wp, 3), 255, np.uint8)))
-    black = _gray(ref_black if ref_black is not None else
+    white = to_grey(capture(np.full((hp, wp, 3), 255, np.uint8)))
+    black = to_grey(ref_black if ref_black is not None else
                   capture(np.zeros((hp, wp, 3), np.uint8)))
     lit = _lit(white, black)
     if ref_white is not None:
-        ref = _gray(ref_white)
+        ref = to_grey(ref_white)
         ref_lit = _lit(ref, black)
         if ref_lit.mean() > 0.01 or lit.mean() > 0.01:
             dx, dy = _shift(ref, white)
@@ -130,7 +127,7 @@ def view_warning(capture: Capturer) -> str | None:
     but the user should know."""
     if capture.first_white is None or capture.first_black is None:
         return None
-    cause = partial_view(_lit(_gray(capture.first_white), _gray(capture.first_black)))
+    cause = partial_view(_lit(to_grey(capture.first_white), to_grey(capture.first_black)))
     return None if cause is None else cause.message
 
 

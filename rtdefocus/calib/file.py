@@ -32,7 +32,7 @@ import numpy as np
 from .. import __version__
 from ..checks import check_coords, check_real, check_size
 from ..errors import CalibrationFileError, InputError
-from .planar import MAX_PLANES, PlaneLayout, largest_inscribed_rect
+from ..planar import MAX_PLANES, PlaneLayout, largest_inscribed_rect
 
 log = logging.getLogger(__name__)
 
@@ -90,17 +90,17 @@ class Calibration:
     """Everything learnt about one projector-camera-surface arrangement.
 
     Geometry: ``H_cam_from_proj`` / ``H_proj_from_cam`` (n, 3, 3) float64 per plane (n = 1 ..
-    :data:`~rtdefocus.calib.planar.MAX_PLANES`); the folds between them, ``folds_proj`` /
+    :data:`~rtdefocus.planar.MAX_PLANES`); the folds between them, ``folds_proj`` /
     ``folds_cam`` (f, 3) float64 lines ``a x + b y + c = 0`` (a² + b² = 1) with
     ``fold_planes`` (f, 2) int32 the plane on each fold's negative and positive side (f = 0 for
-    one plane; :attr:`layout` reads them as a :class:`~rtdefocus.calib.planar.PlaneLayout`);
+    one plane; :attr:`layout` reads them as a :class:`~rtdefocus.planar.PlaneLayout`);
     ``lit_polygon_cam`` (m, 2) outline lit by the projector. Two planes: one fold, plane 0 on
     its negative side (``fold_proj`` / ``fold_cam`` give that line).
     Radiometry (optional): ``response_lut`` (3, 256) code -> linear light, ``ambient_proj``,
     ``albedo_proj`` (Hp, Wp, 3). PSF (optional): ``psf_points_proj`` (N, 2), ``psf_plane`` (N,),
     ``psfs`` (N, k, k) unit-sum gather kernels, ``pix_idx`` / ``pix_wts`` (Hp, Wp, 4).
     Camera (optional, format 2): ``camera_distortion`` (2,) float64 radial (k1, k2) of the
-    lens (:func:`~rtdefocus.calib.planar.distort_points`; the homographies, fold and outline
+    lens (:func:`~rtdefocus.planar.distort_points`; the homographies, fold and outline
     are in undistorted camera pixels), ``camera_lut`` (3, 256) float32 the camera's inverse
     response, code -> linear light.
     ``meta`` holds options, statistics and provenance (JSON-serialisable).
@@ -125,7 +125,7 @@ class Calibration:
     camera_distortion: np.ndarray | None = None
     camera_lut: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
-    #: What the geometry stage saw (:class:`~rtdefocus.calib.geometry.GeometryDetail`), for its
+    #: What the geometry stage saw (:class:`~rtdefocus.calib.geometry.stage.GeometryDetail`), for its
     #: diagnostics picture; in memory only, never saved.
     geometry_detail: object | None = field(default=None, repr=False, compare=False)
     # display_rect answers per (aspect, margin, outline); not a constructor argument.
@@ -153,7 +153,7 @@ class Calibration:
 
     @property
     def layout(self) -> PlaneLayout:
-        """The planes in projector pixels (:class:`~rtdefocus.calib.planar.PlaneLayout`)."""
+        """The planes in projector pixels (:class:`~rtdefocus.planar.PlaneLayout`)."""
         return PlaneLayout(self.n_planes, self.folds_proj, self.fold_planes)
 
     @property

@@ -21,7 +21,7 @@ import logging
 
 import numpy as np
 
-from .runtime import ClRuntime, _cl, choose_device
+from .runtime import ClRuntime, choose_device, import_pyopencl
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ def rgba_image_to_codes(runtime, image, codes, size: tuple[int, int]) -> None:
     prg = runtime.program("gl_share.cl")       # built once per context (the runtime caches it)
     entry = _kernels.get(id(prg))
     if entry is None:                          # one kernel object per program, reused
-        entry = _kernels[id(prg)] = (prg, _cl().Kernel(prg, "rgba_image_to_codes"))
+        entry = _kernels[id(prg)] = (prg, import_pyopencl().Kernel(prg, "rgba_image_to_codes"))
     entry[1](runtime.queue, (w, h), None, image, codes.data, np.int32(w), np.int32(h))
 
 
@@ -70,7 +70,7 @@ def gl_sharing_status(device=None, gl_ctx=None) -> tuple[bool, str]:
     sharing works within one driver). ``device`` defaults to the chosen OpenCL device and
     ``gl_ctx`` to the shared offscreen GL context (created if need be).
     """
-    cl = _cl()
+    cl = import_pyopencl()
     from ..errors import DeviceError
 
     try:
@@ -119,7 +119,7 @@ class GLShare:
     """
 
     def __init__(self, gl_ctx, device):
-        cl = _cl()
+        cl = import_pyopencl()
         gl_ctx.__enter__()                      # make it current: EGL reports the current one
         egl_ctx, egl_dpy = _egl_current()
         if not egl_ctx or not egl_dpy:
@@ -139,7 +139,7 @@ class GLShare:
         glFinish)."""
         from ..gl.warp import shared_renderbuffer
 
-        cl = _cl()
+        cl = import_pyopencl()
         rbo = shared_renderbuffer(size)
         if rbo is None:
             raise RuntimeError("the GL warp has not rendered a frame yet")

@@ -42,7 +42,7 @@ def install_hint(platform: str | None = None) -> str:
 INSTALL_HINT = install_hint()
 
 
-def _cl():
+def import_pyopencl():
     try:
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - pyopencl is a hard dependency
@@ -55,7 +55,7 @@ def list_devices() -> list[tuple[int, int, object, object]]:
 
     Raises :class:`DeviceError` (naming the fix) when no platform is installed.
     """
-    cl = _cl()
+    cl = import_pyopencl()
     try:
         platforms = cl.get_platforms()
     except cl.Error as exc:  # PLATFORM_NOT_FOUND_KHR when no ICD is installed
@@ -73,7 +73,7 @@ def list_devices() -> list[tuple[int, int, object, object]]:
 
 
 def _pick(spec: str | None, source: str):
-    cl = _cl()
+    cl = import_pyopencl()
     devices = list_devices()
     names = ", ".join(f"{pi}:{di} {d.name.strip()} ({p.name.strip()})" for pi, di, p, d in devices)
     if spec:
@@ -119,14 +119,14 @@ class ClRuntime:
     _lock: threading.Lock = field(init=False, default_factory=threading.Lock)
 
     def __post_init__(self):
-        cl = _cl()
+        cl = import_pyopencl()
         self.context = (cl.Context([self.device], properties=self.properties) if self.properties
                         else cl.Context([self.device]))
         self.queue = cl.CommandQueue(self.context)
 
     @property
     def is_gpu(self) -> bool:
-        return bool(self.device.type & _cl().device_type.GPU)
+        return bool(self.device.type & import_pyopencl().device_type.GPU)
 
     @property
     def description(self) -> str:
@@ -155,7 +155,7 @@ BUILD_OPTIONS = ("-cl-denorms-are-zero",)
 
 def build_program(context, filename: str, options: list[str]):
     """Build ``kernels/<filename>``; raise :class:`ProgramBuildError` with the full log on failure."""
-    cl = _cl()
+    cl = import_pyopencl()
     src = kernel_source(filename)
     try:
         # PoCL prints harmless notes (e.g. about unrolling); PyOpenCL turns any compiler output

@@ -18,12 +18,12 @@ import sys
 from .. import __version__
 from ..errors import RtDefocusError
 from .common import parse_size, read_image, write_image
-from .setup import _add_aim, _add_calibrate, _add_cameras, _add_check, _add_info, _add_simulate
-from .show import _add_play, _add_warp
-from .study import _add_demo, _add_eval, _eval_options
+from .setup import add_aim, add_calibrate, add_cameras, add_check, add_info, add_simulate
+from .show import add_play, add_warp
+from .study import add_demo, add_eval, eval_options
 
 __all__ = ["main", "build_parser", "COMMANDS", "parse_size", "read_image", "write_image",
-           "_eval_options"]
+           "eval_options"]
 
 EPILOG = """\
 examples:
@@ -41,8 +41,8 @@ examples:
 
 
 # --------------------------------------------------------------------------- main
-COMMANDS = [_add_info, _add_cameras, _add_aim, _add_simulate, _add_calibrate, _add_warp, _add_play,
-            _add_check, _add_demo, _add_eval]
+COMMANDS = [add_info, add_cameras, add_aim, add_simulate, add_calibrate, add_warp, add_play,
+            add_check, add_demo, add_eval]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -39,7 +39,7 @@ def write_image(path: str | Path, rgb: np.ndarray) -> Path:
     return _write_image(path, rgb)
 
 
-class _Progress:
+class Progress:
     """What the long commands show while they work: a tqdm bar per calibration stage, fed by
     the library's ``progress(stage, done, total)`` callback, and ``step(message)`` lines
     between them. Silent with ``-q``; ``close()`` (or ``with``) ends the open bar."""
@@ -74,7 +74,7 @@ class _Progress:
             self._bar.close()
         self._bar, self._stage = None, None
 
-    def __enter__(self) -> _Progress:
+    def __enter__(self) -> Progress:
         return self
 
     def __exit__(self, *exc) -> None:

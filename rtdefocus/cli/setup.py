@@ -8,13 +8,13 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import RtDefocusError
-from .common import _Progress, parse_size, read_image, write_image
+from .common import Progress, parse_size, read_image, write_image
 
 log = logging.getLogger("rtdefocus")
 
 
 # --------------------------------------------------------------------------- info
-def _add_info(sub):
+def add_info(sub):
     p = sub.add_parser("info", help="list OpenCL devices, the OpenGL renderer, monitors and cameras")
     p.set_defaults(func=cmd_info)
 
@@ -81,7 +81,7 @@ def _print_monitors() -> None:
 
 
 # --------------------------------------------------------------------------- cameras
-def _add_cameras(sub):
+def add_cameras(sub):
     p = sub.add_parser("cameras", help="list the connected cameras: index, name and capture backend",
                        epilog="example:\n  rtdefocus cameras\n  rtdefocus aim --camera 0 "
                        "--camera-backend v4l2 --screen 1",
@@ -106,7 +106,7 @@ def cmd_cameras(args) -> int:
 
 
 # --------------------------------------------------------------------------- simulate
-def _add_simulate(sub):
+def add_simulate(sub):
     p = sub.add_parser("simulate", help="show a pattern or image on the virtual set-up, write "
                        "the camera's view (blurred, and sharp with --sharp)")
     p.add_argument("--scene", default="cubicle", help="simulator preset (default: cubicle)")
@@ -159,7 +159,7 @@ def _stages(text: str) -> tuple[str, ...]:
     return stages
 
 
-def _add_calibrate(sub):
+def add_calibrate(sub):
     p = sub.add_parser("calibrate", help="calibrate a projector-camera set-up (virtual or real) "
                        "and write the calibration file", epilog=CALIBRATE_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -170,7 +170,7 @@ def _add_calibrate(sub):
                      "go full-screen to --screen")
     p.add_argument("--screen", type=int, default=None, help="projector's monitor index (`rtdefocus "
                    "info` lists them; default: the second of two monitors, else 0)")
-    _add_camera_options(p)
+    add_camera_options(p)
     p.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
     from ..calib import STAGES
 
@@ -189,7 +189,7 @@ def _add_calibrate(sub):
 
 
 def _planes(text: str):
-    from ..calib.geometry_fit import check_planes_option
+    from ..calib.geometry.fit import check_planes_option
     from ..errors import InputError
 
     try:
@@ -205,7 +205,7 @@ def _fourcc(text: str) -> str:
     return text.upper() if text.upper() in ("MJPG", "YUYV", "H264", "NV12") else text
 
 
-def _add_camera_options(p, capture: bool = True) -> None:
+def add_camera_options(p, capture: bool = True) -> None:
     """The camera mode (and, for captures, the timing and control) options."""
     p.add_argument("--camera-size", type=parse_size, metavar="WxH",
                    help="camera resolution to ask for, e.g. 1920x1080 (default: the driver's)")
@@ -287,10 +287,10 @@ def _report_hardware(procam, after: bool = False) -> None:
 def cmd_calibrate(args) -> int:
     import time
 
-    from .. import procam as procam_mod
     from ..calib import STAGES, calibrate
     from ..calib.camera_diagnostics import camera_diagnostics
-    from ..calib.geometry_diagnostics import geometry_diagnostics
+    from ..calib.geometry.diagnostics import geometry_diagnostics
+    from ..hardware import hardware_procam as procam_mod
 
     stages = args.stages or STAGES
     if args.sim is not None:
@@ -311,7 +311,7 @@ def cmd_calibrate(args) -> int:
         source = f"camera {args.camera!r}, projector on screen {args.screen}"
     t0 = time.perf_counter()
     try:
-        with _Progress(args.quiet) as progress:
+        with Progress(args.quiet) as progress:
             calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes)
         if hasattr(procam, "drift"):
             _report_hardware(procam, after=True)
@@ -349,7 +349,7 @@ the projector's focus ring until both walls read low and about equal. q or Esc l
 """
 
 
-def _add_aim(sub):
+def add_aim(sub):
     p = sub.add_parser("aim", help="live camera preview with the projected area, clipping and a "
                        "focus meter per wall, while the projector holds a pattern",
                        epilog=AIM_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -359,7 +359,7 @@ def _add_aim(sub):
                    "cameras` lists them)")
     p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
                    "the calibration's monitor, else the second of two, else 0)")
-    _add_camera_options(p, capture=False)
+    add_camera_options(p, capture=False)
     p.add_argument("--pattern", choices=("white", "grid", "checker"), default="checker",
                    help="pattern to start with (default checker)")
     p.add_argument("--preview-size", type=parse_size, default=(960, 540), metavar="WxH",
@@ -417,7 +417,7 @@ command for what was checked. Exit code 1 on a FAIL line.
 """
 
 
-def _add_check(sub):
+def add_check(sub):
     p = sub.add_parser("check", help="pre-flight of a real set-up before calibrating: camera mode, "
                        "monitor, latency, clipping, exposure", epilog=CHECK_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -427,12 +427,12 @@ def _add_check(sub):
                    "cameras` lists them)")
     p.add_argument("--screen", type=int, default=None, help="projector's monitor index (default: "
                    "the calibration's monitor, else the second of two, else 0)")
-    _add_camera_options(p)
+    add_camera_options(p)
     p.set_defaults(func=cmd_check)
 
 
 def cmd_check(args) -> int:
-    from .. import procam as procam_mod
+    from ..hardware import hardware_procam as procam_mod
     from ..hardware.preflight import FAIL, format_report, preflight
 
     calib = None

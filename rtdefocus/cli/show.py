@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .common import parse_size, read_image, write_image
-from .setup import _add_camera_options
+from .setup import add_camera_options
 
 log = logging.getLogger("rtdefocus")
 
@@ -25,7 +25,7 @@ def _fraction(text: str) -> float:
     return value
 
 
-def _add_warp(sub):
+def add_warp(sub):
     p = sub.add_parser(
         "warp", help="geometry-correct an image for the projector with a calibration",
         description="Warp IMAGE into projector space so that, projected, it appears upright and "
@@ -96,7 +96,7 @@ def _brightness(text: str) -> str | float:
     return value
 
 
-def _add_play(sub):
+def add_play(sub):
     p = sub.add_parser("play", help="stream a video, a camera or slides through the compensation to "
                        "the projector (or to files)", epilog=PLAY_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -129,7 +129,7 @@ def _add_play(sub):
     p.add_argument("--cache", metavar="DIR", help="slide cache folder (default: "
                    "$RTDEFOCUS_CACHE, else the user cache folder, e.g. ~/.cache/rtdefocus)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the slide cache")
-    _add_camera_options(p, capture=False)
+    add_camera_options(p, capture=False)
     p.add_argument("--overlay", action="store_true", help="start with the stats overlay on (key s)")
     p.add_argument("--preview", nargs="?", const=(480, 330), type=parse_size, metavar="WxH",
                    help="an operator's window on the laptop: what the projector shows, with fps, "

@@ -6,13 +6,13 @@ import argparse
 import logging
 
 from ..errors import RtDefocusError
-from .common import _Progress, parse_size
+from .common import Progress, parse_size
 
 log = logging.getLogger("rtdefocus")
 
 
 # --------------------------------------------------------------------------- demo
-def _add_demo(sub):
+def add_demo(sub):
     p = sub.add_parser("demo", help="the whole story on the built-in virtual cubicle: calibrate, "
                        "compensate photographs and a text slide, write pictures and a table")
     p.add_argument("-o", "--output", default="demo_out", help="output folder (default demo_out)")
@@ -46,11 +46,11 @@ def _room_names(text: str) -> tuple[str, ...]:
 def cmd_demo(args) -> int:
     import time
 
-    from ..demo import run_demo
+    from ..study.demo import run_demo
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     t0 = time.perf_counter()
-    with _Progress(args.quiet) as progress:
+    with Progress(args.quiet) as progress:
         result = run_demo(args.output, preset=args.scene, methods=methods, seed=args.seed,
                           progress=progress, step=progress.step, surfaces=args.surfaces,
                           rooms=args.rooms)
@@ -92,7 +92,7 @@ def _names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _add_eval(sub):
+def add_eval(sub):
     p = sub.add_parser("eval", help="ablations on the virtual set-ups: presets x images x methods "
                        "x kernel layouts (and the oracle), with a convergence plot",
                        epilog=EVAL_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -131,10 +131,10 @@ def _add_eval(sub):
     p.set_defaults(func=cmd_eval)
 
 
-def _eval_options(args) -> dict:
+def eval_options(args) -> dict:
     """``run_eval`` keyword arguments from the command line: ``--quick`` first, then whatever
     was given explicitly."""
-    from ..eval import QUICK
+    from ..study.eval import QUICK
 
     opts: dict = dict(QUICK) if args.quick else {}
     given = {"presets": args.presets, "images": args.images, "methods": args.methods,
@@ -160,7 +160,7 @@ def _numbers(text: str | None, kind):
 
 
 def cmd_eval_video(args) -> int:
-    from ..eval_video import run_video_eval
+    from ..study.eval_video import run_video_eval
 
     opts = {"quick": args.quick, "projector_size": args.size, "camera_size": args.camera_size,
             "preset": args.preset, "calibration": args.calibration, "seed": args.seed,
@@ -169,7 +169,7 @@ def cmd_eval_video(args) -> int:
                      ("offline", args.offline_iterations)):
         if val is not None:
             opts[key] = val
-    with _Progress(args.quiet) as progress:
+    with Progress(args.quiet) as progress:
         result = run_video_eval(args.output, step=progress.step, **opts)
     print()
     print(result["markdown"].rstrip())
@@ -182,10 +182,10 @@ def cmd_eval_video(args) -> int:
 def cmd_eval(args) -> int:
     if args.video:
         return cmd_eval_video(args)
-    from ..eval import run_eval
+    from ..study.eval import run_eval
 
-    with _Progress(args.quiet) as progress:
-        result = run_eval(args.output, progress=progress, step=progress.step, **_eval_options(args))
+    with Progress(args.quiet) as progress:
+        result = run_eval(args.output, progress=progress, step=progress.step, **eval_options(args))
     # The summary; the per-preset tables are wide: they are in eval.md.
     parts = result["markdown"].split("\n## ")
     print()

@@ -28,7 +28,7 @@ class Item:
 
 def preflight(procam) -> list[Item]:
     """Run the checks on an open :class:`rtdefocus.HardwareProCam` (with a live camera)."""
-    from .sync import gray
+    from ..imageio import to_grey
 
     items: list[Item] = []
     cam = procam.cam
@@ -57,7 +57,7 @@ def preflight(procam) -> list[Item]:
     wp, hp = procam.projector_size
     white = procam.capture(np.full((hp, wp, 3), 255, np.uint8))
     black = procam.capture(np.zeros((hp, wp, 3), np.uint8))
-    diff = gray(white) - gray(black)
+    diff = to_grey(white) - to_grey(black)
     lit = diff > float(np.percentile(diff, 95)) / 3
     lit_px = white[lit]
     clipped = float((lit_px >= 254).any(axis=1).mean()) if lit_px.size else 0.0
@@ -65,7 +65,7 @@ def preflight(procam) -> list[Item]:
                       FAIL if clipped > 0.05 else WARN if clipped > 0.005 else OK,
                       "lower the camera's exposure (--lock --exposure MS) or the projector's "
                       "brightness until no white pixel reaches 255" if clipped > 0.005 else ""))
-    level_black = float(np.median(gray(black)[lit])) if lit.any() else 0.0
+    level_black = float(np.median(to_grey(black)[lit])) if lit.any() else 0.0
     contrast = float(np.median(diff[lit])) if lit.any() else 0.0
     items.append(Item("black level", f"{level_black:.0f} of 255 (ambient light and projector black)",
                       WARN if level_black > 60 else OK,

@@ -25,13 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CaptureError
+from ..graycode import decode_gray, gray_code_bit
+from ..imageio import to_grey
 
 log = logging.getLogger(__name__)
-
-
-def gray(img: np.ndarray) -> np.ndarray:
-    """Mean of the channels as float32 (H, W)."""
-    return np.asarray(img, np.float32).mean(axis=2) if img.ndim == 3 else np.asarray(img, np.float32)
 
 
 @dataclass
@@ -71,7 +68,7 @@ def measure_latency(camera, show: Callable[[np.ndarray], float], projector_size:
     t0 = show(white)
     trace, t_rise, last = [], None, None
     while True:
-        img = gray(camera.read())
+        img = to_grey(camera.read())
         t = time.perf_counter() - t0
         m = float(img.mean())
         trace.append((t, m))
@@ -105,7 +102,7 @@ def _read_until_stable(camera, deadline: float, n: int = 3, at_least: float = 0.
     frames, means = [], []
     start = time.perf_counter()
     while True:
-        img = gray(camera.read())
+        img = to_grey(camera.read())
         frames.append(img)
         means.append(float(img.mean()))
         if len(means) >= n + 1 and time.perf_counter() - start >= at_least:
@@ -137,9 +134,8 @@ def gray_code_patterns(projector_size: tuple[int, int], bits: int) -> list[tuple
     out = []
     for axis, length in (("x", wp), ("y", hp)):
         cell = (np.arange(length) * (1 << bits)) // length
-        code = cell ^ (cell >> 1)
         for b in range(bits):
-            on = ((code >> (bits - 1 - b)) & 1).astype(np.uint8) * 255
+            on = gray_code_bit(cell, b, bits).astype(np.uint8) * 255
             img = np.broadcast_to(on[None, :] if axis == "x" else on[:, None], (hp, wp))
             out.append((axis, b, np.repeat(img[:, :, None], 3, axis=2).copy()))
     return out
@@ -162,15 +158,7 @@ class CoarseMap:
         mid = black + 0.5 * contrast
         cells = {}
         for axis in ("x", "y"):
-            code = np.zeros(black.shape, np.int32)
-            for b in range(n):
-                code = (code << 1) | (gray(captures[(axis, b)]) > mid)
-            binary = code.copy()                       # Gray -> binary
-            shift = code >> 1
-            while shift.any():
-                binary ^= shift
-                shift >>= 1
-            cells[axis] = binary
+            cells[axis] = decode_gray([to_grey(captures[(axis, b)]) > mid for b in range(n)])
         self.index = np.where(lit, cells["y"] * self.n + cells["x"], -1).ravel()
         self.counts = np.bincount(self.index[self.index >= 0], minlength=self.n * self.n)
         self.used = self.counts >= 4
@@ -181,7 +169,7 @@ class CoarseMap:
                                f"{self.n * self.n} coarse cells; aim it at the whole projected area")
 
     def _cells(self, img: np.ndarray) -> np.ndarray:
-        g = gray(img).ravel()
+        g = to_grey(img).ravel()
         ok = self.index >= 0
         sums = np.bincount(self.index[ok], weights=g[ok], minlength=self.n * self.n)
         return (sums / np.maximum(self.counts, 1))[self.used]
@@ -190,7 +178,7 @@ class CoarseMap:
         """Cell means of a projector pattern in linear light (gamma 2.2, 0..1)."""
         import cv2
 
-        lin = (gray(pattern) / 255.0) ** 2.2
+        lin = (to_grey(pattern) / 255.0) ** 2.2
         return cv2.resize(lin, (self.n, self.n), interpolation=cv2.INTER_AREA).ravel()[self.used]
 
     def camera_cells(self, frame: np.ndarray) -> np.ndarray:

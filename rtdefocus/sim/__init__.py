@@ -11,7 +11,7 @@ Modules, one concept each:
 * :mod:`~rtdefocus.sim.scene` — :class:`Scene`, :data:`PRESETS`, wall geometry and ray casting;
 * :mod:`~rtdefocus.sim.optics` — thin-lens defocus: aperture kernels, :func:`blend_kernel`, the
   kernel field rendered on a grid of radii;
-* :mod:`~rtdefocus.sim.procam` — :class:`VirtualProCam`: irradiance shading, albedo, ambient,
+* :mod:`~rtdefocus.sim.virtual_procam` — :class:`VirtualProCam`: irradiance shading, albedo, ambient,
   responses, noise, the camera's view; :func:`capture_seconds`;
 * :mod:`~rtdefocus.sim.truth` — :class:`GroundTruth`;
 * :mod:`~rtdefocus.sim.oracle` — :func:`oracle_calibration`, a Calibration from the truth;
@@ -21,9 +21,9 @@ Modules, one concept each:
 from .optics import RADIUS_STEP, blend_kernel
 from .oracle import oracle_calibration
 from .patterns import PATTERNS, test_pattern
-from .procam import SHADING_MEAN, WEBCAM, VirtualProCam, capture_seconds
 from .scene import PRESETS, Scene
 from .truth import GroundTruth
+from .virtual_procam import SHADING_MEAN, WEBCAM, VirtualProCam, capture_seconds
 
 __all__ = [
     "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "VirtualProCam", "WEBCAM",

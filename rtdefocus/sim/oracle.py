@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..calib.file import Calibration
-from ..calib.planar import PlaneLayout, lit_polygon
+from ..planar import PlaneLayout, lit_polygon
 from .optics import RADIUS_STEP, blend_kernel
 
 

@@ -114,13 +114,13 @@ class _Wall:
     tex: np.ndarray | None = None  # (2, 3) in-plane texture axes (s, y); None: e (or n × up), world y
 
 
-def _rot_z(deg: float) -> np.ndarray:
+def rot_z(deg: float) -> np.ndarray:
     a = math.radians(deg)
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _look_at(center: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
+def look_at(center: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
     """World-to-camera rotation for a camera at ``center`` looking at ``target``, its image
     y axis as close to ``down`` as possible."""
     z = target - center
@@ -131,7 +131,7 @@ def _look_at(center: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.nda
     return np.stack([x, y, z])
 
 
-def _cast(origin: np.ndarray, dirs: np.ndarray, walls: list[_Wall]) -> tuple[np.ndarray, np.ndarray]:
+def cast_rays(origin: np.ndarray, dirs: np.ndarray, walls: list[_Wall]) -> tuple[np.ndarray, np.ndarray]:
     """Nearest hit of rays ``origin + t dirs`` (dirs (3, N), world) with the walls.
 
     Returns t (N,) float64 (inf on a miss) and the wall index (N,) int (-1 on a miss).
@@ -155,7 +155,7 @@ def _cast(origin: np.ndarray, dirs: np.ndarray, walls: list[_Wall]) -> tuple[np.
     return best_t, best_w
 
 
-def _line_through(p1: np.ndarray, p2: np.ndarray, neg_point: np.ndarray) -> np.ndarray:
+def line_through(p1: np.ndarray, p2: np.ndarray, neg_point: np.ndarray) -> np.ndarray:
     """Normalised line through two image points, negative at ``neg_point`` (all (x, y))."""
     line = np.cross([p1[0], p1[1], 1.0], [p2[0], p2[1], 1.0])
     line = line / math.hypot(line[0], line[1])

@@ -26,7 +26,7 @@ class GroundTruth:
         it is negative, for two planes; None for one (``flat``) or three and more.
     folds_proj, folds_cam : (m, 3) float64, every fold inside the projector frame (one per pair
         of planes that meet there), normalised like ``fold_proj`` and oriented by
-        :func:`~rtdefocus.calib.planar.canonical_line` in the projector (normal towards +x; +y
+        :func:`~rtdefocus.planar.canonical_line` in the projector (normal towards +x; +y
         when ``|b| > |a|``), listed in order of their plane pair; ``folds_cam`` are the same
         folds in ideal camera pixels, with the same planes on the same sides.
     fold_planes : (m, 2) int64, [plane on the fold's negative side, plane on its positive side].
@@ -43,7 +43,7 @@ class GroundTruth:
     camera_response : (256,) float32, the camera's inverse response: linear light (0..1) of
         each code (what calibration's camera response should recover); ``camera_response_kind``
         "gamma" | "srgb".
-    distortion : (k1, k2) radial lens distortion (:func:`rtdefocus.calib.planar.distort_points`);
+    distortion : (k1, k2) radial lens distortion (:func:`rtdefocus.planar.distort_points`);
         ``H_cam_from_proj`` and ``fold_cam`` are in ideal (undistorted) camera pixels.
     exposure_drift : the camera gain's relative change per capture.
     extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the

@@ -65,7 +65,7 @@ from ..imageio import fit_image
 from .cache import SlideCache, calibration_fingerprint
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .sinks import Sink
-from .slides import SlidesMixin, _Work
+from .slides import SlidesMixin, SlideWork
 from .sources import Frame, SlidesSource, Source
 from .stats import LoopStats, Series
 from .threads import SinkWriter
@@ -194,7 +194,7 @@ class Player(SlidesMixin):
         self._stop = threading.Event()
         self._hold = threading.Event()       # set while a paced (file) source should wait
         self._last_index = -1
-        self._work: _Work | None = None
+        self._work: SlideWork | None = None
         self.threads = bool(threads)
         self.catch_up = bool(catch_up)
         self._prev_input: np.ndarray | None = None   # the last input (budget kinds, catch-up)
@@ -587,7 +587,7 @@ class Player(SlidesMixin):
         c = self.controls
         w = self._work
         if w is None or w.index != held.index:
-            w = self._work = _Work(held.index, started=True)
+            w = self._work = SlideWork(held.index, started=True)
         if c.mode == "full" and not w.done:
             t0 = time.perf_counter()
             out, _ = self._refine_step(held.index, held.image)

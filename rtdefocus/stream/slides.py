@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class _Work:
+class SlideWork:
     """A still picture being refined: its slide index and what was done so far."""
 
     index: int
@@ -45,7 +45,7 @@ class SlidesMixin:
     ``_idle``, ``_update_budget``.
     """
 
-    _work: _Work | None
+    _work: SlideWork | None
     #: Interactive show: "next" on the last slide ends the run (a playlist moves on) instead of
     #: staying there; :attr:`left_at_end` then says so.
     leave_at_end = False
@@ -65,7 +65,7 @@ class SlidesMixin:
         """
         w = self._work
         if w is None or w.index != index:
-            w = self._work = _Work(index)
+            w = self._work = SlideWork(index)
         if w.done and w.last_out is not None:
             return w.last_out, True
         if self.iterations is not None:          # a fixed budget: exactly that, from the target

@@ -8,12 +8,12 @@ import numpy as np
 from ...errors import CalibrationError, InputError
 from ..file import Calibration
 from .dots import equivalent_radius
-from .layout import fold_segments
+from .sampling import fold_segments
 
 __all__ = ["radius_map", "psf_diagnostics"]
 
 # Background of each plane in the PSF panel: dark, apart enough to see the planes, and dim
-# under the kernels' inferno colours (plane 0 and 1 as before: grey and blue-grey).
+# under the kernels' inferno colours (plane 0 grey, plane 1 blue-grey).
 _PLANE_SHADES = np.array([[24, 24, 24], [40, 40, 56], [56, 36, 36], [32, 52, 36],
                           [52, 48, 24], [48, 28, 52], [24, 48, 52], [56, 56, 56]], np.uint8)
 

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import CalibrationError, InputError
+from ...planar import apply_h_per_plane
 from ..capture import Capturer
 from ..file import Calibration
-from ..lens import ideal_points, lens_k, observed_points
-from ..planar import apply_h_per_plane
-from ..radiometry import linearize_camera
+from ..geometry.lens import ideal_points, lens_k, observed_points
+from ..radiometry.stage import linearize_camera
 from .pilot import support_bound
 
 log = logging.getLogger(__name__)
@@ -43,7 +43,7 @@ _RIDGE_DECONV = 0.05
 _RIDGE_EXACT = 1e-2
 # A dot whose light (the kernel's sum) is below this many sigmas of a sum of noise over its LS
 # disc is skipped (too faint to measure); filled from its neighbours by the PSF stage.
-_MIN_SNR = 3.0
+MIN_SNR = 3.0
 
 
 def pack_patterns(points: np.ndarray, support: np.ndarray, window: np.ndarray) -> list[list[int]]:
@@ -183,7 +183,7 @@ def equivalent_radius(psf: np.ndarray) -> float:
     return math.sqrt(max(2.0 * m2, 0.0))
 
 
-def _clean(k: np.ndarray, support: float, floor: float = 0.0) -> tuple[np.ndarray, float, float]:
+def clean_kernel(k: np.ndarray, support: float, floor: float = 0.0) -> tuple[np.ndarray, float, float]:
     """Tight support from the kernel's own radius, zero what is below ``floor`` (negative
     noise always), unit sum (step 5). Returns (kernel, its equivalent radius, support)."""
     h = k.shape[0] // 2
@@ -232,7 +232,7 @@ def dot_sizes(radius_pred: np.ndarray, dot_size: int | str = "auto") -> np.ndarr
     return np.full(len(r), int(dot_size))
 
 
-def _dot_geometry(radius_pred: np.ndarray, dots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def dot_geometry(radius_pred: np.ndarray, dots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Light support and measuring-window half-size of each dot (px)."""
     sup = support_bound(radius_pred) + dots / 2.0
     return sup, np.ceil(sup).astype(int) + 3
@@ -251,7 +251,7 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
     wp, hp = calib.projector_size
     points = np.asarray(points, int)
     dots = dot_sizes(radius_pred, dot_size)
-    sup, win = _dot_geometry(radius_pred, dots)
+    sup, win = dot_geometry(radius_pred, dots)
     patterns = pack_patterns(points, sup, win)
     cam_px, cam_py = camera_to_projector_maps(calib)
     psfs: list = [None] * len(points)
@@ -286,13 +286,13 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
                 log.warning("PSF at (%d, %d): only %d camera pixels see its window", x, y, nrows)
             energy = k.sum()
             try:
-                psf, r, t = _clean(k, float(sup[i]))
+                psf, r, t = clean_kernel(k, float(sup[i]))
             except CalibrationError:
                 psf = None
             # The dot's total light against the noise of a sum over the LS disc's pixels.
             n_disc = math.pi * float(sup[i]) ** 2
             peak_snr = float(energy) / max(sg * math.sqrt(n_disc), 1e-12)
-            if psf is None or energy <= 0 or peak_snr < _MIN_SNR:
+            if psf is None or energy <= 0 or peak_snr < MIN_SNR:
                 # Too faint to measure (a dark wall, strong ambient light): filled from its
                 # neighbours later (PsfRun.fill), not fatal here.
                 skipped[i] = True

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import CalibrationError, InputError
+from ...checks import check_choice
+from ...errors import CalibrationError
 from ..file import Calibration
-from .layout import SamplePlan, _bounding, _inward
 from .pilot import fold_code
+from .sampling import SamplePlan
 
 __all__ = ["interpolation_field"]
 
@@ -108,8 +109,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
     idx : (Hp, Wp, 4) int32, wts : (Hp, Wp, 4) float32 (rows sum to 1, unused slots 0).
     """
     mode = mode or ("cross" if plan.cross_fold else "planes")
-    if mode not in ("planes", "cross"):
-        raise InputError(f"mode must be 'planes' or 'cross'; got {mode!r}")
+    check_choice(mode, ("planes", "cross"), "mode")
     wp, hp = calib.projector_size
     ys, xs = np.mgrid[0:hp, 0:wp]
     pix_all = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
@@ -124,7 +124,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
         plane = calib.plane_map().ravel()
         regions = {p: plane == p for p in range(calib.n_planes)}
         members = {p: np.flatnonzero((plan.planes == p) | np.isin(
-            plan.planes, [fold_code(j) for j in _bounding(calib, p)]))
+            plan.planes, [fold_code(j) for j in calib.layout.bounding_folds(p)]))
             for p in range(calib.n_planes)}
     for p, sel in regions.items():
         ids = members[p]
@@ -143,7 +143,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
                 a, b = pts[strip[0]], pts[strip[1]]
                 # Pixels beyond the line through the fold-side corners (towards the fold).
                 n = np.array([a[1] - b[1], b[0] - a[0]])
-                inward = _inward(calib, fold_code(plan.planes[strip[2]]), p)
+                inward = calib.layout.inward(fold_code(plan.planes[strip[2]]), p)
                 if n @ inward < 0:
                     n = -n
                 use_strip = (pix - a) @ n < 0

@@ -13,7 +13,7 @@ import numpy as np
 from ...errors import CalibrationError
 from ..capture import Capturer
 from ..file import Calibration
-from ..radiometry import linearize_camera, to_projector
+from ..radiometry.stage import linearize_camera, to_projector
 
 log = logging.getLogger(__name__)
 

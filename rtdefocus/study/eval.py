@@ -2,12 +2,12 @@
 
 * :func:`run_eval` — presets x images x methods x kernel layouts (plus the oracle kernels,
   :func:`rtdefocus.sim.oracle_calibration`, as the upper bound), scored with
-  :func:`rtdefocus.scores.score_image`;
+  :func:`rtdefocus.study.scores.score_image`;
 * :func:`calibrate_layouts` — one geometry and radiometry, the kernel stage for several layouts
   from shared captures; :func:`mean_gains` — the summary over images;
 * :func:`convergence_curves` — distance and camera-view PSNR against iterations and time.
 
-The report (markdown tables, the convergence figure) is written by :mod:`rtdefocus.evalreport`.
+The report (markdown tables, the convergence figure) is written by :mod:`rtdefocus.study.evalreport`.
 """
 
 from __future__ import annotations
@@ -21,18 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from . import sim
-from .calib import calibrate
-from .calib.capture import Capturer
-from .calib.file import json_default
-from .cl.runtime import opencl_available
-from .compensate import Compensator
-from .errors import InputError
+from .. import sim
+from ..calib import calibrate
+from ..calib.capture import Capturer
+from ..calib.file import json_default
+from ..cl.runtime import opencl_available
+from ..compensate import Compensator
+from ..errors import InputError
+from ..sim import oracle_calibration
 from .eval_layouts import calibrate_psf_layouts
 from .evalreport import eval_markdown, plot_convergence
 from .samples import demo_images
 from .scores import camera_view, psnr, rect_mask, score_image
-from .sim import oracle_calibration
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ def calibrate_layouts(procam, layouts=tuple(EVAL_LAYOUTS), progress=None) -> tup
     """Calibrate geometry and radiometry once, then the kernel stage for several layouts.
 
     The layouts share one pilot and one set of dot captures
-    (:func:`rtdefocus.eval_layouts.calibrate_psf_layouts`), each pattern averaged as often as the
+    (:func:`rtdefocus.study.eval_layouts.calibrate_psf_layouts`), each pattern averaged as often as the
     first layout alone would average it, so the layouts are compared on equal noise.
 
     Parameters
@@ -257,7 +257,7 @@ def _chained_curve(comp, warped, checkpoints, score, curve) -> None:
         d = info["distances"]
         run = int(info["iterations"])
         secs = info["seconds"]["solve"] if run else 0.0
-        # Each run starts by re-evaluating d at its starting P: the previous run's last value.
+        # Each run starts by re-evaluating d at its starting P: the last value of the run before it.
         curve["distances"] += d if first else d[1:]
         curve["seconds"] += ([0.0] if first else []) + _spread(t, secs, len(d) - 1)
         done += run
@@ -296,7 +296,7 @@ def run_eval(out_dir: str | Path = "eval_out", *, presets=EVAL_PRESETS, images=N
     Per preset: geometry and radiometry are calibrated once, the kernel stage once for all
     ``layouts`` (:func:`calibrate_layouts`: shared captures); with ``oracle`` the simulator's
     true calibration (:func:`rtdefocus.sim.oracle_calibration`) is added as the upper bound.
-    Each image is projected every way and scored (:func:`rtdefocus.scores.score_image`): PSNR
+    Each image is projected every way and scored (:func:`rtdefocus.study.scores.score_image`): PSNR
     and SSIM of the camera view against the sharp reference over the display rect, PSNR over
     the band near the fold. Writes ``eval.md``, ``eval.json`` and (with ``convergence``)
     ``convergence.png`` into ``out_dir``.
@@ -305,7 +305,7 @@ def run_eval(out_dir: str | Path = "eval_out", *, presets=EVAL_PRESETS, images=N
     ----------
     out_dir : output folder (created).
     presets : simulator presets (:data:`rtdefocus.sim.PRESETS`).
-    images : None (:func:`rtdefocus.samples.demo_images`: four photographs and a text slide),
+    images : None (:func:`rtdefocus.study.samples.demo_images`: four photographs and a text slide),
         names among those, or a dict name -> (H, W, 3) uint8 RGB.
     methods : among ``"ycbcr"``, ``"rgb"``, ``"wiener"`` (geometry only is always scored).
     layouts : among :data:`EVAL_LAYOUTS`.
@@ -324,7 +324,7 @@ def run_eval(out_dir: str | Path = "eval_out", *, presets=EVAL_PRESETS, images=N
     Returns
     -------
     dict with ``settings``, ``presets`` (per preset: ``calibration`` info, ``rows`` — one
-    :class:`rtdefocus.scores.ImageScores` dict per image, score keys ``"none"``, ``"none/oracle"``
+    :class:`rtdefocus.study.scores.ImageScores` dict per image, score keys ``"none"``, ``"none/oracle"``
     and ``"method/layout"`` — and ``gains`` from :func:`mean_gains`), ``convergence`` (curves),
     ``seconds``, ``files`` and ``markdown``.
     """

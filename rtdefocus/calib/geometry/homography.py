@@ -13,8 +13,8 @@ import math
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError
-from .planar import apply_h
+from ...errors import CalibrationError
+from ...planar import apply_h
 from .structured_light import DetectedLine
 
 __all__ = ["line_crossings", "fit_homography"]
@@ -144,7 +144,7 @@ def radial_rms(sets: list[tuple[np.ndarray, np.ndarray]], k: tuple[float, float]
     """RMS (camera px, over all planes) of each plane's crossings from its own homography once
     the camera points are undistorted with the lens ``k`` = (k1, k2); planes with fewer than 8
     crossings are left out. ``sets``: per plane, (projector xy (n, 2), camera xy (n, 2))."""
-    from .planar import undistort_points
+    from ...planar import undistort_points
 
     sq, n = 0.0, 0
     for proj, cam in sets:

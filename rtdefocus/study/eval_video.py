@@ -24,7 +24,7 @@ the same warp (``procam.capture(comp.warp(image), sharp=True)``) inside the disp
 and so is geometry only (``comp.warp(image)``); the gain is the difference in PSNR. Per segment
 the report gives the mean gain and its share of the offline mode's, the still segment's gain
 after 1 s, and the frames to recover after the cut. The report (markdown, plot) is
-:mod:`rtdefocus.eval_video_report`.
+:mod:`rtdefocus.study.eval_video_report`.
 
 Captures and cold solves of identical frames are computed once (a still is many identical
 frames); the warm and wall-clock modes are always run frame by frame.
@@ -43,13 +43,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import sim
-from .calib.file import Calibration, json_default
-from .compensate import Compensator
-from .errors import InputError
+from .. import sim
+from ..calib.file import Calibration, json_default
+from ..compensate import Compensator
+from ..errors import InputError
+from ..sim import oracle_calibration
+from ..stream.controls import IterationBudget
+from .machine import machine_info
 from .scores import camera_view, psnr, rect_mask
-from .sim import oracle_calibration
-from .stream.controls import IterationBudget
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +116,7 @@ def make_clip(size: tuple[int, int] = (800, 600), segments=SEGMENTS,
     ----------
     size : (w, h) of the frames.
     segments : sequence of :class:`Segment`.
-    photos : name -> RGB uint8; default :func:`rtdefocus.samples.photographs`.
+    photos : name -> RGB uint8; default :func:`rtdefocus.study.samples.photographs`.
     """
     if photos is None:
         from .samples import photographs
@@ -190,8 +191,8 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
         geometry only to keep up).
     stats : rtdefocus.stream.LoopStats
     """
-    from .stream import ArraySource, Player
-    from .stream.sinks import Sink
+    from ..stream import ArraySource, Player
+    from ..stream.sinks import Sink
 
     comp = Compensator(calib, backend=backend)     # (the live player warms it up itself)
 
@@ -385,7 +386,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                      "budgets": budgets, "fps": fps, "offline_iterations": offline,
                      "backend": cold.backend, "solver": cold.solver_name, "seed": seed,
                      "segments": [s.__dict__ for s in segments], "clip_fps": CLIP_FPS},
-        "machine": machine_description(),
+        "machine": machine_info(),
         "modes": modes, "segments": [s.name for s in segments], "summary": summary,
         "window": window_stats,
         "frames": records,
@@ -445,29 +446,3 @@ def _recovery(rs: list[dict], m: str, modes) -> int | None:
         if all(ok[k:]):
             return k
     return None
-
-
-def machine_description() -> dict:
-    """CPU, cores, load average and the OpenCL device (what the timings were taken on)."""
-    import os
-    import platform
-    info = {"cpu": platform.processor() or "unknown", "cores": os.cpu_count(),
-            "platform": platform.platform()}
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        for line in text.splitlines():
-            if line.startswith("model name"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        info["loadavg"] = os.getloadavg()
-    except OSError:
-        pass
-    try:
-        from .cl.runtime import get_runtime
-        info["device"] = get_runtime().description
-    except Exception as exc:  # noqa: BLE001 - description only
-        info["device"] = f"none ({exc})"
-    return info

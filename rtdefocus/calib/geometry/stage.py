@@ -1,7 +1,7 @@
 """Geometry stage: lines -> planes (any number), their homographies and folds -> lit area.
 
-DESIGN.md §4, paper §3.1 (after Paidimarri & Chandran), extended to any number of planes
-(issue 13). Learnt only through ``capture``:
+DESIGN.md §4, paper §3.1 (after Paidimarri & Chandran), extended to any number of planes.
+Learnt only through ``capture``:
 
 1. :mod:`.structured_light` gives, for every projected line, its sub-pixel ridge in the camera.
 2. :func:`~.geometry_fit.fit_geometry` does the rest from those lines alone: kinks on each line
@@ -23,11 +23,11 @@ import logging
 import time
 from dataclasses import dataclass, fields
 
-from ..errors import InputError
-from ..procam import ProCam
-from .capture import Capturer
-from .file import Calibration
-from .geometry_fit import GeometryDetail, check_planes_option, fit_geometry
+from ...errors import InputError
+from ...procam import ProCam
+from ..capture import Capturer
+from ..file import Calibration
+from .fit import GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns

@@ -26,7 +26,7 @@ import logging
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ...errors import CalibrationError, InputError
 
 log = logging.getLogger(__name__)
 

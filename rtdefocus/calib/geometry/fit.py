@@ -28,10 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError
-from .fold import Kink, find_kinks, fit_fold, fold_to_projector
-from .homography import fit_homography, line_crossings
-from .planar import (
+from ...errors import CalibrationError, InputError
+from ...planar import (
     MAX_PLANES,
     PlaneLayout,
     canonical_line,
@@ -39,6 +37,8 @@ from .planar import (
     lit_polygon,
     segment_in_mask,
 )
+from .fold import Kink, find_kinks, fit_fold, fold_to_projector
+from .homography import fit_homography, line_crossings
 from .planes import (
     CrossingGrid,
     boundary_kinks,

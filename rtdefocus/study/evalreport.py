@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RtDefocusError
+from .extras import need
 
 __all__ = ["eval_markdown", "plot_convergence", "LAYOUT_LABELS", "METHOD_SHORT"]
 
@@ -24,11 +24,7 @@ def new_figure(what: str, figsize: tuple[float, float], path: Path, hint: str = 
     naming the extra to install: matplotlib is optional (rtdefocus[demo]) and slow to import,
     so it loads here, on use. A Figure without pyplot renders with Agg and leaves the process's
     backend alone."""
-    try:
-        from matplotlib.figure import Figure
-    except ImportError as exc:
-        raise RtDefocusError(f"{what} needs matplotlib: pip install 'rtdefocus[demo]' (or "
-                             f"matplotlib){hint}") from exc
+    Figure = need("matplotlib.figure", what, hint).Figure
     path.parent.mkdir(parents=True, exist_ok=True)
     return Figure(figsize=figsize, layout="constrained")
 

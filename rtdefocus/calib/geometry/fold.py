@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .planar import apply_h, line_eval, normalise_line, tls_line
+from ...planar import apply_h, line_eval, normalise_line, tls_line
 
 __all__ = ["Kink", "find_kink", "find_kinks", "fit_fold", "fold_to_projector"]
 

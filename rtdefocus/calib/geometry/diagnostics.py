@@ -5,10 +5,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import InputError
-from .file import Calibration
-from .geometry import GeometryDetail
-from .planar import apply_h, fold_segments_cam, plane_polygons_proj
+from ...errors import InputError
+from ...planar import apply_h, fold_segments_cam, plane_polygons_proj
+from ..file import Calibration
+from .stage import GeometryDetail
 
 __all__ = ["geometry_diagnostics"]
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import sim
-from .compensate import Compensator
-from .imageio import write_image
+from .. import sim
+from ..compensate import Compensator
+from ..imageio import write_image
 from .panels import crop_box, fit_height, hstack, label
 from .scores import camera_view, coefficient_of_variation, psnr_affine, rect_mask
 

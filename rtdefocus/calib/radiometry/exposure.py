@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ...errors import CalibrationError
 from .camera_response import linearize
 
 # Fraction of the lit area allowed to clip on the white frame before it is an error.
@@ -108,8 +108,8 @@ def check_geometry_drift(capture, calib) -> np.ndarray | None:
     as sRGB, what webcams send: a linear camera's drift is then overstated about 2x, i.e. the
     check errs toward reporting an exposure that moved.
     """
+    from ..geometry.lens import lit_mask_observed
     from .camera_response import known_response
-    from .lens import lit_mask_observed
 
     first, last, black = capture.first_white, capture.last_white, capture.first_black
     if first is None or last is None or black is None:
@@ -124,7 +124,7 @@ def check_end_white(capture, calib, white: np.ndarray, black: np.ndarray,
     """One more white capture at the end of a stage against ``white``, the white frame (camera
     codes) the stage measured everything against (the PSF stage normalises every dot by it):
     :func:`check_drift` of the two, the change (3,) returned."""
-    from .lens import lit_mask_observed
+    from ..geometry.lens import lit_mask_observed
 
     wp, hp = calib.projector_size
     later = capture(np.full((hp, wp, 3), 255, np.uint8)).astype(np.float32)

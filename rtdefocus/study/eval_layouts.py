@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import copy
 
-from .calib.capture import Capturer
-from .calib.file import Calibration
-from .calib.psf import PsfOptions, PsfRun, psf_options
+from ..calib.capture import Capturer
+from ..calib.file import Calibration
+from ..calib.psf import PsfOptions, PsfRun, psf_options
 
 __all__ = ["calibrate_psf_layouts"]
 

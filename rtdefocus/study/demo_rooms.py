@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import sim
-from .calib import calibrate
-from .calib.geometry_diagnostics import geometry_diagnostics
-from .calib.psf import psf_diagnostics
-from .compensate import Compensator
-from .imageio import write_image
+from .. import sim
+from ..calib import calibrate
+from ..calib.geometry.diagnostics import geometry_diagnostics
+from ..calib.psf import psf_diagnostics
+from ..compensate import Compensator
+from ..imageio import write_image
 from .scores import ImageScores, score_image
 
 __all__ = ["run_rooms"]

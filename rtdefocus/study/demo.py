@@ -23,14 +23,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import sim
-from .calib import calibrate
-from .calib.camera_diagnostics import camera_diagnostics
-from .calib.file import json_default
-from .calib.geometry_diagnostics import geometry_diagnostics
-from .calib.psf import psf_diagnostics
-from .compensate import Compensator
-from .imageio import write_image
+from .. import sim
+from ..calib import calibrate
+from ..calib.camera_diagnostics import camera_diagnostics
+from ..calib.file import json_default
+from ..calib.geometry.diagnostics import geometry_diagnostics
+from ..calib.psf import psf_diagnostics
+from ..compensate import Compensator
+from ..imageio import write_image
 from .panels import crop_box as _crop_box
 from .panels import fit_height as _fit_height
 from .panels import hstack as _hstack
@@ -51,7 +51,7 @@ StepFn = Callable[[str], None]
 def _fold_zoom_box(calib, rect, reference: np.ndarray, size: int = 96) -> tuple[slice, slice]:
     """A square of camera pixels on a fold (the middle of the rect for one plane), placed
     where the sharp reference has the most detail, so the zoom shows what compensation does."""
-    from .calib.planar import fold_segments_cam
+    from ..planar import fold_segments_cam
 
     x, y, w, h = rect
     # Candidate centres: along every fold's camera segment, else down the rect's middle.
@@ -153,9 +153,9 @@ def run_demo(out_dir: str | Path = "demo_out", *, preset: str = "cubicle",
     headroom : the text slide is also shown with this headroom (what it buys on clipped text).
     surfaces : also the ``fabric`` preset: geometry only | defocus only | defocus + flatten |
         sharp on a white wall, per photograph, and the uniformity figures
-        (:mod:`rtdefocus.demo_surfaces`; ``table.json`` gains ``surfaces``).
+        (:mod:`rtdefocus.study.demo_surfaces`; ``table.json`` gains ``surfaces``).
     rooms : presets of more than two planes also calibrated through ``capture`` and shown
-        with the photographs (:mod:`rtdefocus.demo_rooms`; default ``corner_ceiling``, two
+        with the photographs (:mod:`rtdefocus.study.demo_rooms`; default ``corner_ceiling``, two
         walls and the ceiling; ``()`` for none); ``table.json`` gains ``rooms``.
     **procam_options : passed to :class:`rtdefocus.sim.VirtualProCam` (e.g. smaller sizes).
 

@@ -25,10 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ...errors import CalibrationError
+from ...planar import MAX_PLANES, apply_h
 from .fold import Kink
 from .homography import fit_homography
-from .planar import MAX_PLANES, apply_h
 
 log = logging.getLogger(__name__)
 

@@ -23,9 +23,10 @@ import time
 import cv2
 import numpy as np
 
-from ..calib.camera_response import linear_to_srgb, srgb_to_linear
-from ..calib.planar import canonical_line, undistort_points
+from ..calib.radiometry.camera_response import linear_to_srgb, srgb_to_linear
+from ..checks import check_choice
 from ..errors import InputError
+from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
 from .optics import BlurPlan
 from .patterns import test_pattern
@@ -33,12 +34,12 @@ from .scene import (
     PRESETS,
     ROOM_KINDS,
     Scene,
-    _cast,
-    _line_through,
-    _look_at,
-    _rot_z,
+    cast_rays,
+    line_through,
+    look_at,
     plane_order,
     room_folds,
+    rot_z,
     scene_walls,
 )
 from .truth import GroundTruth
@@ -113,7 +114,7 @@ class VirtualProCam:
         could not be locked): capture n is taken with gain ``exp(exposure_drift · n)`` times a
         seeded jitter of 10 % of that step; 0 (default) holds the exposure still.
     distortion : (k1, k2) radial distortion of the camera lens about the image centre, radius
-        normalised to 1 at the frame corners (:func:`rtdefocus.calib.planar.distort_points`);
+        normalised to 1 at the frame corners (:func:`rtdefocus.planar.distort_points`);
         negative k1 is barrel distortion. The truth's homographies and fold are in the ideal
         (undistorted) camera pixels.
 
@@ -164,8 +165,7 @@ class VirtualProCam:
         for what, size in (("projector_size", projector_size), ("camera_size", camera_size)):
             if len(size) != 2 or min(int(size[0]), int(size[1])) < 16:
                 raise InputError(f"{what} must be (width, height) with both >= 16; got {size!r}")
-        if aperture not in ("disc", "hex"):
-            raise InputError(f"aperture must be 'disc' or 'hex'; got {aperture!r}")
+        check_choice(aperture, ("disc", "hex"), "aperture")
         chromatic = tuple(float(c) for c in chromatic)
         if len(chromatic) != 3 or min(chromatic) <= 0:
             raise InputError(f"chromatic must be three positive radius scales (R, G, B); got {chromatic}")
@@ -191,8 +191,7 @@ class VirtualProCam:
                              f"[0, 0.5]; got {texture!r}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
-        if camera_response not in ("gamma", "srgb"):
-            raise InputError(f"camera_response must be 'gamma' or 'srgb'; got {camera_response!r}")
+        check_choice(camera_response, ("gamma", "srgb"), "camera_response")
         distortion = tuple(float(k) for k in distortion)
         if len(distortion) != 2 or max(abs(k) for k in distortion) > 0.3:
             raise InputError(f"distortion must be (k1, k2) with |k| <= 0.3; got {distortion}")
@@ -242,7 +241,7 @@ class VirtualProCam:
         wp, hp = self.projector_size
         f = 1.2 * wp                       # throw ratio ~1.2: frame ~2.1 m wide at 2.5 m
         self.K_proj = np.array([[f, 0.0, (wp - 1) / 2.0], [0.0, f, (hp - 1) / 2.0], [0.0, 0.0, 1.0]])
-        self.R_proj = _rot_z(sc.roll_deg)  # world -> projector
+        self.R_proj = rot_z(sc.roll_deg)  # world -> projector
         walls, self._fold_point = scene_walls(sc, self.K_proj, self.R_proj, self.projector_size)
         self._walls = walls
         self._room = sc.kind in ROOM_KINDS
@@ -317,7 +316,7 @@ class VirtualProCam:
         (3, N) and projector-frame directions (3, N) with z = 1."""
         dirs_p = np.linalg.inv(self.K_proj) @ np.vstack([pix, np.ones((1, pix.shape[1]))])
         dirs_w = self.R_proj.T @ dirs_p
-        t, wall = _cast(np.zeros(3), dirs_w, self._walls)
+        t, wall = cast_rays(np.zeros(3), dirs_w, self._walls)
         return t, wall, t * dirs_w, dirs_p            # t is the depth along the projector axis
 
     def _depths_of(self, pix: np.ndarray) -> np.ndarray:
@@ -380,12 +379,12 @@ class VirtualProCam:
         # so the outline fills 85 % of the frame: the whole lit area with margin.
         target = outline.mean(axis=1)
         for _ in range(3):
-            R = _look_at(center, target, down)
+            R = look_at(center, target, down)
             pc = R @ (outline - center[:, None])
             xn, yn = pc[0] / pc[2], pc[1] / pc[2]
             mid = np.array([(xn.min() + xn.max()) / 2, (yn.min() + yn.max()) / 2, 1.0])
             target = center + R.T @ mid
-        R = _look_at(center, target, down)
+        R = look_at(center, target, down)
         pc = R @ (outline - center[:, None])
         xn, yn = pc[0] / pc[2], pc[1] / pc[2]
         fc = 0.85 * min((wc / 2) / np.abs(xn).max(), (hc / 2) / np.abs(yn).max())
@@ -401,7 +400,7 @@ class VirtualProCam:
             gx, gy = ideal[..., 0], ideal[..., 1]
         dirs_w = (R.T @ np.linalg.inv(self.K_cam)) @ np.stack([gx.ravel(), gy.ravel(),
                                                                 np.ones(gx.size)])
-        t, wall = _cast(center, dirs_w, self._walls)
+        t, wall = cast_rays(center, dirs_w, self._walls)
         hit = wall >= 0
         t = np.where(hit, t, 1.0)
         pts = center[:, None] + t * dirs_w
@@ -409,7 +408,7 @@ class VirtualProCam:
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = xp[0] / xp[2], xp[1] / xp[2]
         # Shadow test: the projector's own ray must reach this very point first (t = 1).
-        tp, _ = _cast(np.zeros(3), pts, self._walls)
+        tp, _ = cast_rays(np.zeros(3), pts, self._walls)
         lit = hit & (xp[2] > 0) & (np.abs(tp - 1.0) < 1e-6)
         inside = lit & (u >= -m) & (u <= wp - 1 + m) & (v >= -m) & (v <= hp - 1 + m)
         self._map_x = np.where(inside, u + m, _OUTSIDE).reshape(hc, wc).astype(np.float32)
@@ -482,16 +481,16 @@ class VirtualProCam:
             for f in room_folds(self._walls, self.K_proj, self.R_proj, self.projector_size):
                 xa, xb = f.points[0], f.points[-1]
                 xi = 0.5 * (xa + xb) + 0.01 * f.side_i    # 1 cm into wall i
-                folds.append((_line_through(proj(xa), proj(xb), proj(xi)),
-                              _line_through(cam(xa), cam(xb), cam(xi)), [f.i, f.j]))
+                folds.append((line_through(proj(xa), proj(xb), proj(xi)),
+                              line_through(cam(xa), cam(xb), cam(xi)), [f.i, f.j]))
             if len(self._walls) == 2 and folds:
                 fold_proj, fold_cam = folds[0][0], folds[0][1]
         elif len(self._walls) == 2:
             f0 = self._fold_point
             p_hi, p_lo = f0 + [0.0, -1.0, 0.0], f0 + [0.0, 1.0, 0.0]
             inside0 = f0 + 0.3 * self._walls[0].e + [0.0, 0.0, 0.0]
-            fold_proj = _line_through(proj(p_hi), proj(p_lo), proj(inside0))
-            fold_cam = _line_through(cam(p_hi), cam(p_lo), cam(inside0))
+            fold_proj = line_through(proj(p_hi), proj(p_lo), proj(inside0))
+            fold_cam = line_through(cam(p_hi), cam(p_lo), cam(inside0))
             folds.append((fold_proj, fold_cam, [0, 1]))
         folds_proj, folds_cam, fold_planes = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), np.int64)
         if folds:

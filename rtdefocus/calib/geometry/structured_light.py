@@ -34,12 +34,14 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ...errors import CalibrationError, InputError
+from ...graycode import decode_gray, gray_code_bit
+from ...imageio import to_grey
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "LinePatterns", "DetectedLine", "LineDetection", "to_gray", "normalise", "decode_gray",
+    "LinePatterns", "DetectedLine", "LineDetection", "normalise",
     "find_ridge_points", "LineDetector", "image_shift",
 ]
 
@@ -122,8 +124,7 @@ class LinePatterns:
     def gray_pattern(self, axis: str, bit: int) -> np.ndarray:
         """(Hp, Wp, 3) uint8: bit ``bit`` (0 = most significant) of the Gray code of the stripe."""
         k = np.arange(self.extent(axis)) // self.spacing
-        g = k ^ (k >> 1)
-        prof = (((g >> (self.n_bits(axis) - 1 - bit)) & 1) * 255).astype(np.uint8)
+        prof = (gray_code_bit(k, bit, self.n_bits(axis)) * 255).astype(np.uint8)
         return self._full(prof, axis)
 
     def solid(self, value: int) -> np.ndarray:
@@ -152,16 +153,6 @@ class LinePatterns:
 
 
 # --------------------------------------------------------------------------- image helpers
-def to_gray(frame: np.ndarray) -> np.ndarray:
-    """(H, W, 3) camera frame -> (H, W) float32 mean of the channels (code values 0..255)."""
-    frame = np.asarray(frame)
-    if frame.ndim == 3:
-        if frame.dtype == np.uint8:     # exact integer sum, then one float scale (fast)
-            return frame.sum(axis=2, dtype=np.uint16).astype(np.float32) * np.float32(1.0 / 3.0)
-        return frame.astype(np.float32).mean(axis=2, dtype=np.float32)
-    return frame.astype(np.float32)
-
-
 def normalise(img: np.ndarray, black: np.ndarray, white: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """``(I - B) / (W - B)`` on the valid pixels, 0 elsewhere; (H, W) float32.
 
@@ -172,19 +163,6 @@ def normalise(img: np.ndarray, black: np.ndarray, white: np.ndarray, valid: np.n
     out = (img - black) / den
     out[~valid] = 0.0
     return out.astype(np.float32)
-
-
-def decode_gray(bits: list[np.ndarray]) -> np.ndarray:
-    """Stripe index from Gray-code bit images (MSB first, each (H, W) bool); (H, W) int32."""
-    g = np.zeros(bits[0].shape, np.int32)
-    for b in bits:
-        g = (g << 1) | b.astype(np.int32)
-    k = g.copy()
-    shift = g >> 1
-    while shift.any():          # Gray -> binary: k = g ^ (g >> 1) ^ (g >> 2) ^ ...
-        k ^= shift
-        shift >>= 1
-    return k
 
 
 def find_ridge_points(norm: np.ndarray, valid: np.ndarray, half: int, min_peak: float = 0.06,
@@ -364,7 +342,7 @@ class LineDetector:
     # ------------------------------------------------------------------ feeding
     def add(self, name: str, frame: np.ndarray) -> None:
         """Hand over the capture of pattern ``name`` ((Hc, Wc, 3) uint8 or float codes)."""
-        gray = to_gray(frame)
+        gray = to_grey(frame)
         if name == "black":
             self.black = gray
         elif name == "white":

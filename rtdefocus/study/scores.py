@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .reference.lut import decode_lut, encode_lut, increasing_lut
+from ..errors import InputError
+from ..reference.lut import decode_lut, encode_lut, increasing_lut
+from .extras import need
 
 __all__ = ["psnr", "ssim", "near_fold_mask", "near_folds_mask", "rect_mask", "camera_view",
            "edge_pixels", "ImageScores",
@@ -109,8 +110,7 @@ def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None,
     mask : (H, W) bool, optional — average the SSIM map over these pixels only.
     data_range : peak value, overriding the dtype's.
     """
-    # scikit-image is an optional extra (rtdefocus[demo]) and slow to import: load it on use.
-    from skimage.metrics import structural_similarity
+    structural_similarity = need("skimage.metrics", "SSIM").structural_similarity
 
     a, b = _pair(a, b)
     channel_axis = 2 if a.ndim == 3 else None
@@ -148,7 +148,7 @@ def near_folds_mask(calib, shape: tuple[int, int], half_width: float) -> np.ndar
     """Camera pixels within ``half_width`` px of any fold of ``calib`` (ideal camera pixels).
 
     Each fold's band follows its camera line (``calib.folds_cam``) along the part that really
-    separates its two planes (:meth:`~rtdefocus.calib.planar.PlaneLayout.fold_segments` of the
+    separates its two planes (:meth:`~rtdefocus.planar.PlaneLayout.fold_segments` of the
     projector frame, mapped to the camera); where that part ends inside the frame (a vertex
     where folds meet) the band ends in a half disc, where it leaves the frame the band goes on
     (only the display rectangle is scored). One plane: all False.
@@ -163,7 +163,7 @@ def near_folds_mask(calib, shape: tuple[int, int], half_width: float) -> np.ndar
     -------
     (H, W) bool
     """
-    from .calib.planar import fold_segments_cam, projector_frame
+    from ..planar import fold_segments_cam, projector_frame
 
     out = np.zeros(shape, bool)
     if calib.n_planes == 1:
@@ -202,9 +202,9 @@ def rect_mask(rect: tuple[int, int, int, int], shape: tuple[int, int]) -> np.nda
 
 def camera_view(procam, calib, frame: np.ndarray, sharp: bool = False) -> np.ndarray:
     """The camera's view of ``frame`` in ``calib``'s ideal camera pixels (the lens's distortion
-    taken out, :func:`rtdefocus.calib.lens.ideal_view`), so the display rectangle and the fold
+    taken out, :func:`rtdefocus.calib.geometry.lens.ideal_view`), so the display rectangle and the fold
     band crop what they say. ``sharp`` is the simulator's option (no blur, no noise)."""
-    from .calib.lens import ideal_view
+    from ..calib.geometry.lens import ideal_view
 
     view = procam.capture(frame, sharp=True) if sharp else procam.capture(frame)
     return ideal_view(calib, view)

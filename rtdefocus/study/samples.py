@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .extras import need
+
 __all__ = ["text_slide", "photographs", "demo_images"]
 
 
@@ -37,9 +39,7 @@ def text_slide(size: tuple[int, int] = (640, 480)) -> np.ndarray:
 
 def photographs() -> dict[str, np.ndarray]:
     """The test photographs (scikit-image's chelsea, coffee, astronaut, rocket) as RGB uint8."""
-    # scikit-image is an optional extra (rtdefocus[demo]) and slow to import: load it on use.
-    from skimage import data
-
+    data = need("skimage.data", "the test photographs")
     return {name: np.ascontiguousarray(getattr(data, name)())
             for name in ("chelsea", "coffee", "astronaut", "rocket")}
 

@@ -28,7 +28,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from .planar import distort_points, undistort_points
+from ...planar import distort_points, undistort_points
 from .structured_light import DetectedLine, LineDetection
 
 log = logging.getLogger(__name__)
@@ -171,7 +171,7 @@ def undistort_detection(det: LineDetection, k: tuple[float, float],
 def max_displacement(k, camera_size: tuple[int, int]) -> float:
     """Largest displacement (camera px) the radial lens ``k`` = (k1, k2) makes within the
     frame: r (k1 r² + k2 r⁴) times the model's radius scale, over 0 <= r <= 1 (the corners)."""
-    from .planar import distortion_scale
+    from ...planar import distortion_scale
 
     r = np.linspace(0.0, 1.0, 101)
     return float(np.abs(r * (k[0] * r ** 2 + k[1] * r ** 4)).max() * distortion_scale(camera_size)[2])
@@ -230,7 +230,7 @@ def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetecti
     the first fit's error is raised when that does not explain it. Warnings of the first fit
     (logger ``logger``) are held back, and repeated only when no correction follows.
     """
-    from ..errors import CalibrationError
+    from ...errors import CalibrationError
 
     first_error = None
     try:

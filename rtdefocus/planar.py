@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
+from .errors import InputError
 
 __all__ = [
     "apply_h", "apply_h_per_plane", "normalise_line", "line_eval", "tls_line", "canonical_line",
@@ -168,7 +168,7 @@ class PlaneLayout:
     A point belongs to plane p when it is on p's side of every fold that bounds p. Fitted folds
     that should meet at one vertex pass a little apart; there a point goes to the plane it is
     least outside of (:meth:`label`), so the labels always tile the frame, with no gap or
-    overlap. Two planes: one fold, plane 0 on its negative side, exactly as before (ties, on
+    overlap. Two planes: one fold, plane 0 on its negative side (ties, on
     the line itself, go to the higher plane).
     """
 
@@ -239,10 +239,22 @@ class PlaneLayout:
     def n_folds(self) -> int:
         return len(self.folds)
 
+    def bounding_folds(self, plane: int) -> list[int]:
+        """Indices of the folds that bound ``plane``."""
+        return [int(j) for j in np.flatnonzero(self.signs[plane])]
+
     def bounding(self, plane: int) -> list[tuple[np.ndarray, float]]:
         """The folds that bound ``plane``: (line, s) with s · line(x) >= 0 inside the plane."""
-        return [(self.folds[j], float(self.signs[plane, j]))
-                for j in range(self.n_folds) if self.signs[plane, j] != 0]
+        return [(self.folds[j], float(self.signs[plane, j])) for j in self.bounding_folds(plane)]
+
+    def inward(self, j: int, plane: int) -> np.ndarray:
+        """Unit normal (2,) of fold ``j`` pointing into ``plane``."""
+        return float(self.signs[plane, j]) * self.folds[j][:2].astype(np.float64)
+
+    def fold_distance(self, j: int, pts_xy: np.ndarray, plane: int) -> np.ndarray:
+        """Signed distance (px) of points (N, 2) into ``plane`` from fold ``j`` (positive inside)."""
+        a, b, c = self.folds[j]
+        return float(self.signs[plane, j]) * (pts_xy[:, 0] * a + pts_xy[:, 1] * b + c)
 
     def outside(self, x, y) -> np.ndarray:
         """(n_planes, *shape) float64: how far (px) each point is outside each plane; <= 0 inside

@@ -9,10 +9,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import CalibrationError, InputError
+from ...checks import check_choice
+from ...errors import CalibrationError
+from ...planar import clip_polygon, inset_frame
 from ..file import Calibration
-from ..planar import clip_polygon, inset_frame
-from .dots import _dot_geometry, dot_sizes
+from .dots import dot_geometry, dot_sizes
 from .pilot import RadiusModel, fold_code
 
 log = logging.getLogger(__name__)
@@ -24,40 +25,12 @@ LAYOUTS = ("default", "paper", "dense")
 
 def fold_segments(calib: Calibration, inset: float = 0.0) -> list[np.ndarray | None]:
     """Per fold of ``calib.layout``, the end points (2, 2) of the part of its line that really
-    separates its two planes (the shared edge of their outlines, :meth:`PlaneLayout.fold_segments`)
-    inside the frame of pixel centres shrunk by ``inset``; None where they do not meet there.
-    The ends are ordered along the line's direction (-b, a)."""
+    separates its two planes (:meth:`PlaneLayout.fold_segments`) inside the frame of pixel
+    centres shrunk by ``inset``; None where they do not meet there. The ends are ordered along
+    the line's direction (-b, a)."""
     if calib.n_planes == 1:
         return []
-    layout = calib.layout
-    folds = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)
-    wp, hp = calib.projector_size
-    out: list[np.ndarray | None] = []
-    for j, (a, b, c) in enumerate(folds):
-        p0 = -c * np.array([a, b])
-        d = np.array([-b, a])
-        lo, hi = -np.inf, np.inf
-        for k, (vmin, vmax) in enumerate(((inset, wp - 1 - inset), (inset, hp - 1 - inset))):
-            if abs(d[k]) < 1e-12:
-                if not vmin <= p0[k] <= vmax:
-                    lo, hi = np.inf, -np.inf
-                continue
-            t1, t2 = (vmin - p0[k]) / d[k], (vmax - p0[k]) / d[k]
-            lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
-        # Where both planes' other folds keep it inside them (none for two planes): s · g(t) >= 0
-        # with g the other fold's value along this line.
-        for q in layout.fold_planes[j]:
-            for (ak, bk, ck), s in _other_folds(calib, q, j):
-                g0, g1 = s * (ak * p0[0] + bk * p0[1] + ck), s * (ak * d[0] + bk * d[1])
-                if abs(g1) < 1e-12:
-                    if g0 < 0:
-                        lo, hi = np.inf, -np.inf
-                elif g1 > 0:
-                    lo = max(lo, -g0 / g1)
-                else:
-                    hi = min(hi, -g0 / g1)
-        out.append(np.stack([p0 + lo * d, p0 + hi * d]) if lo < hi else None)
-    return out
+    return calib.layout.fold_segments(inset_frame(calib.projector_size, inset))
 
 
 def fold_segment(calib: Calibration, inset: float = 0.0) -> np.ndarray | None:
@@ -66,32 +39,6 @@ def fold_segment(calib: Calibration, inset: float = 0.0) -> np.ndarray | None:
     if calib.n_planes != 2:
         return None
     return fold_segments(calib, inset)[0]
-
-
-def _other_folds(calib: Calibration, plane: int, j: int) -> list[tuple[np.ndarray, float]]:
-    """The folds bounding ``plane`` other than fold ``j``: (line as stored, s) with
-    s · line(x) >= 0 inside the plane."""
-    folds = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)
-    signs = calib.layout.signs
-    return [(folds[k], float(signs[plane, k])) for k in range(len(folds))
-            if k != j and signs[plane, k] != 0]
-
-
-def _bounding(calib: Calibration, plane: int) -> list[int]:
-    """Indices of the folds that bound ``plane``."""
-    return [int(j) for j in np.flatnonzero(calib.layout.signs[plane])]
-
-
-def _inward(calib: Calibration, j: int, plane: int) -> np.ndarray:
-    """Unit normal of fold ``j`` pointing into ``plane``."""
-    a, b, _ = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)[j]
-    return float(calib.layout.signs[plane, j]) * np.array([a, b], np.float64)
-
-
-def _fold_dist(calib: Calibration, j: int, pts: np.ndarray, plane: int) -> np.ndarray:
-    """Signed distance of points into ``plane`` from fold ``j`` (positive inside)."""
-    a, b, c = np.asarray(calib.folds_proj, np.float64).reshape(-1, 3)[j]
-    return float(calib.layout.signs[plane, j]) * (pts[:, 0] * a + pts[:, 1] * b + c)
 
 
 @dataclass
@@ -150,7 +97,7 @@ def _along(a: np.ndarray, b: np.ndarray, spacing: float, include_ends=True) -> n
 def pack_distance(r: np.ndarray, dot_size: int | str = "auto") -> np.ndarray:
     """Smallest Chebyshev distance (px) of two dots of predicted radius r in one pattern."""
     r = np.asarray(r, np.float64)
-    sup, win = _dot_geometry(r, dot_sizes(r, dot_size))
+    sup, win = dot_geometry(r, dot_sizes(r, dot_size))
     return win + sup + 1
 
 
@@ -192,15 +139,17 @@ def _fold_samples(calib: Calibration, model: RadiusModel, plane: int, j: int,
     t = np.linspace(0, 1, n) if first else (np.arange(n - 1) + 0.5) / (n - 1)
     feet = seg[0] + t[:, None] * (seg[1] - seg[0])
     d = _fold_offset(model, feet, plane)
-    pts = feet + d[:, None] * _inward(calib, j, plane)
+    pts = feet + d[:, None] * calib.layout.inward(j, plane)
     # Keep them inside the frame: shift along the fold if the offset pushed them out.
     wp, hp = calib.projector_size
     lo, hi = np.array([edge_inset, edge_inset]), np.array([wp - 1 - edge_inset, hp - 1 - edge_inset])
     ok = np.all((pts >= lo) & (pts <= hi), axis=1)
     # Near a vertex, as far from the plane's other folds as from this one (its light stays on
     # its plane); the plane's corner, inset from both folds, samples the vertex.
-    for (ak, bk, ck), s in _other_folds(calib, plane, j):
-        ok &= s * (pts[:, 0] * ak + pts[:, 1] * bk + ck) >= d
+    layout = calib.layout
+    for k in layout.bounding_folds(plane):
+        if k != j:
+            ok &= layout.fold_distance(k, pts, plane) >= d
     return pts[ok]
 
 
@@ -220,7 +169,7 @@ def _separate_corners(points: np.ndarray, planes: np.ndarray, kinds: np.ndarray,
     pl = planes[idx]
     for _ in range(20):
         r = np.array([model(q[None], int(p))[0] for q, p in zip(pts, pl, strict=True)])
-        sup, win = _dot_geometry(r, dot_sizes(r, dot_size))
+        sup, win = dot_geometry(r, dot_sizes(r, dot_size))
         push = np.zeros_like(pts)
         for a in range(len(idx)):
             for b in range(a + 1, len(idx)):
@@ -365,8 +314,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
     Samples closer than two dots may be in one pattern are thinned out (corners first, then
     fold samples, then the rest), so that a layout fits in as few patterns as possible.
     """
-    if layout not in LAYOUTS:
-        raise InputError(f"layout must be one of {LAYOUTS}; got {layout!r}")
+    check_choice(layout, LAYOUTS, "layout")
     size = calib.projector_size
     one_region = cross_fold or calib.n_planes == 1
     regions = [0] if one_region else list(range(calib.n_planes))
@@ -390,7 +338,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
             def rfun(xy):
                 return model(xy, 0)
         else:
-            mine = [j for j in _bounding(calib, p) if segs[j] is not None]
+            mine = [j for j in calib.layout.bounding_folds(p) if segs[j] is not None]
             feet = np.vstack([segs[j] for j in mine]) if mine else np.zeros((0, 2))
             d_max = 0.0
             if len(feet):
@@ -507,12 +455,12 @@ def _paper_quads(calib: Calibration, plan: SamplePlan, one_region: bool) -> dict
         quads[p] = [("main", idx.tolist())]
         if one_region:
             continue
-        folds = _bounding(calib, p)
+        folds = calib.layout.bounding_folds(p)
         fold_idx = np.flatnonzero(np.isin(plan.planes, [fold_code(j) for j in folds]))
         if len(folds) != 1 or len(fold_idx) != 2:
             continue
         pts = plan.points.astype(np.float64)
-        dist = _fold_dist(calib, folds[0], pts[idx], p)
+        dist = calib.layout.fold_distance(folds[0], pts[idx], p)
         near = idx[np.argsort(dist)[:2]]                   # the two fold-side corners
         # Order the strip quad cyclically: corner A, corner B, fold point near B, near A.
         fa = fold_idx[np.argmin(np.hypot(*(pts[fold_idx] - pts[near[0]]).T))]
