@@ -139,7 +139,8 @@ def test_module_size(path):
 
 
 # Import name -> distribution name, where they differ.
-_DIST = {"cv2": "opencv-python-headless", "skimage": "scikit-image", "yaml": "pyyaml"}
+_DIST = {"cv2": "opencv-python-headless", "skimage": "scikit-image", "yaml": "pyyaml",
+         "cv2_enumerate_cameras": "cv2-enumerate-cameras", "Xlib": "python-xlib"}
 
 
 def _third_party_imports() -> dict[str, bool]:

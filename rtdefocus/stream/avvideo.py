@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 from .audio import AudioOutput, WallClock
-from .sources import Frame, Source
+from .source import Frame, Source
 
 log = logging.getLogger(__name__)
 

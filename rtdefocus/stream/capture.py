@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .sources import Frame, Source
+from .source import Frame, Source
 
 log = logging.getLogger(__name__)
 

@@ -20,72 +20,18 @@ import logging
 import re
 import time
 from collections import OrderedDict
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..imageio import IMAGE_EXTENSIONS, read_image, rgb_from_cv2
+from .source import Frame, Source
 
 log = logging.getLogger(__name__)
 
 URL_SCHEMES = ("rtsp://", "rtmp://", "http://", "https://", "udp://", "tcp://", "srt://")
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One input frame.
-
-    Attributes
-    ----------
-    index : int
-        Position in the source, from 0; strictly increasing in the order frames are read.
-    image : ndarray, (H, W, 3) uint8
-        RGB.
-    t_read : float
-        ``time.perf_counter()`` when the frame was read (for latency).
-    name : str or None
-        File name of a slide.
-    """
-
-    index: int
-    image: np.ndarray
-    t_read: float
-    name: str | None = None
-
-
-class Source:
-    """Base class of frame sources; use as a context manager or call :meth:`close`."""
-
-    kind = "source"
-    live = False
-    still = False
-    #: Nominal frames per second (None when unknown or not meaningful).
-    fps: float | None = None
-    #: Number of frames when known in advance (None for cameras and unknown lengths).
-    n_frames: int | None = None
-
-    def read(self) -> Frame | None:
-        """The next frame, or None at the end of the source."""
-        raise NotImplementedError
-
-    def close(self) -> None:
-        """Release the file or device (idempotent)."""
-
-    def describe(self) -> str:
-        return self.kind
-
-    def __iter__(self) -> Iterator[Frame]:
-        while (frame := self.read()) is not None:
-            yield frame
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def natural_key(name: str) -> list:
