@@ -5,6 +5,7 @@
 >>> calib = rd.calibrate(procam)                     # everything learnt through procam.capture()
 >>> comp = rd.Compensator(calib)                     # OpenCL when a device exists, else NumPy
 >>> frame = comp.compensate(image)                   # (Hp, Wp, 3) uint8 for the projector
+>>> rd.render("setup.npz", "film.mp4", "film_corner.mp4")   # a film for any player (extra: render)
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ _LAZY = {
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
     "HardwareProCam": ("rtdefocus.procam", "HardwareProCam"),
+    "render": ("rtdefocus.film", "render"),
 }
 
 
@@ -46,7 +48,7 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam",
+    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam", "render",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
     "DeviceError", "InputError", "InputTypeError", "__version__",
 ]
