@@ -89,7 +89,8 @@ def _audio_packets(path):
 def _same_audio(a, b, tol=1.5e-3):
     """Equal packets at equal times (Matroska keeps milliseconds, and shifts every stream
     alike where an audio priming packet starts before 0)."""
-    assert len(a[0]) > 20 and a[0] == b[0], "the audio packets differ"
+    assert len(a[0]) >= 5, "no tone in the film"
+    assert a[0] == b[0], "the audio packets differ"
     assert np.abs(a[1] - b[1]).max() <= tol, np.abs(a[1] - b[1]).max()
 
 
@@ -199,23 +200,41 @@ def test_render_killed_resumes_without_redoing_chunks(film, archive, tmp_path):
     _same_audio(_audio_packets(out), _audio_packets(whole.output), tol=0.0)
 
 
-def test_cli_default_quality_keeps_the_compensation(film, archive, capsys):
-    """`rtdefocus render` at the default quality (H.264 4:4:4, crf 12): the camera's view of
-    every decoded frame within 0.3 dB of the uncompressed (lossless) frame's."""
+@pytest.mark.slow
+def test_cli_default_quality_keeps_the_compensation(tmp_path, capsys):
+    """`rtdefocus render` at the default quality (H.264 4:4:4, crf 4) on the 800x600 corner of
+    `eval --video` (smaller set-ups blur less and score far above 40 dB, where any codec's error
+    dominates): the camera's view of every decoded frame, still and panning, within 0.3 dB of
+    the uncompressed compensation's and well above geometry only; the tone's packets exact."""
     from rtdefocus import cli
+    from rtdefocus.eval_video import Segment, make_clip
+    from rtdefocus.scores import camera_view, psnr, rect_mask
+    from rtdefocus.sim import oracle_calibration
 
-    out = film["root"] / "cli.mp4"
-    code = cli.main(["-q", "render", str(film["setup"]), str(film["path"]), "-o", str(out),
-                     "--workers", "0", "--chunk-frames", str(CHUNK), "--overlap", str(OVERLAP)])
+    size, camera = (800, 600), (1280, 960)
+    procam = rd.sim.VirtualProCam("cubicle", projector_size=size, camera_size=camera, noise=0.0)
+    calib = oracle_calibration(procam)
+    calib.save(tmp_path / "setup.npz")
+    clip = [f for _, f in make_clip(size, (Segment("still", "still", 1),
+                                           Segment("pan", "pan", 2, 8.0)))]
+    write_film(tmp_path / "film.mp4", clip, fps=25)
+    out = tmp_path / "out.mp4"
+    code = cli.main(["-q", "render", str(tmp_path / "setup.npz"), str(tmp_path / "film.mp4"),
+                     "-o", str(out), "--workers", "0"])
     assert code == 0, capsys.readouterr().err
     frames = list(decode_rgb(out))
-    assert len(frames) == 30
-    _same_audio(_audio_packets(film["path"]), _audio_packets(out), tol=1e-9)   # MP4: exact
-    lossless = archive[1]
-    coded, exact = _views(film, frames, noise=None), _views(film, lossless, noise=None)
-    worst = (exact - coded).max()
-    assert worst <= 0.3, f"frame {(exact - coded).argmax()}: the encoding costs {worst:.2f} dB"
-    assert np.abs(frames[12].astype(int) - lossless[12]).max() > 0   # it is a lossy encoding
+    _same_audio(_audio_packets(tmp_path / "film.mp4"), _audio_packets(out), tol=1e-9)
+    info = probe(tmp_path / "film.mp4")
+    comp = rd.Compensator(calib)
+    mask = rect_mask(calib.display_rect(size), (camera[1], camera[0]))
+    for i, image in enumerate(read_frames(info, 0, info.n_frames)):
+        exact = comp.compensate(image, iterations=40)
+        ref = camera_view(procam, calib, comp.warp(image), sharp=True)
+        db = {k: psnr(camera_view(procam, calib, f), ref, mask)
+              for k, f in (("exact", exact), ("coded", frames[i]), ("geometry", comp.warp(image)))}
+        assert db["exact"] - db["coded"] <= 0.3, (i, db)
+        assert db["coded"] - db["geometry"] > 2.0, (i, db)
+        assert not np.array_equal(frames[i], exact)             # it is a lossy encoding
 
 
 @pytest.mark.parametrize("case", ["no film", "not a video", "no setup", "output folder",

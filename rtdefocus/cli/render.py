@@ -11,7 +11,7 @@ the film's sound copied unchanged: play it full-screen on the projector with any
 Finished chunks are kept in the work folder (default OUT.render/): run the same command again
 after a stop and it carries on where it stopped.
 qualities:
-  high        H.264 High 4:4:4, crf 12 (default; .mp4, .mkv, .mov)
+  high        H.264 High 4:4:4, crf 4 (default; .mp4, .mkv, .mov)
   compatible  H.264 4:2:0, crf 12, for players that decode nothing else
   archive     FFV1 lossless RGB (.mkv)
 examples:
@@ -32,6 +32,9 @@ def _add_render(sub):
     p.add_argument("-o", "--output", required=True, help="output video (.mp4, .mkv, .mov)")
     p.add_argument("--quality", default="high", choices=("high", "compatible", "archive"),
                    help="encoding (default high; see below)")
+    p.add_argument("--crf", type=int, metavar="N",
+                   help="H.264 constant rate factor instead of the quality's (lower: closer to the "
+                   "uncompressed frames, larger files)")
     p.add_argument("--workers", type=int, default=2,
                    help="local worker processes, each with its own device (default 2; 0: this "
                    "process)")
@@ -73,7 +76,7 @@ def cmd_render(args) -> int:
 
     try:
         result = render(args.calibration, args.film, args.output, quality=args.quality,
-                        workers=args.workers, scheduler=args.scheduler,
+                        crf=args.crf, workers=args.workers, scheduler=args.scheduler,
                         chunk_frames=args.chunk_frames, overlap=args.overlap,
                         iterations=args.iterations, method=args.method, backend=args.backend,
                         work=args.work, keep_work=args.keep_work, progress=progress)

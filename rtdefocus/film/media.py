@@ -51,18 +51,22 @@ class Quality:
     description: str
 
 
-# crf 12: visually lossless; no B-frames, so that every chunk's timestamps are its frame
-# numbers (decode order = display order) and chunks join by copying their packets.
-_X264 = (("crf", "12"), ("preset", "medium"), ("bf", "0"))
+# crf 4 keeps the camera's view of every frame within 0.3 dB of the uncompressed frame (crf
+# 12, "visually lossless" for ordinary video, costs up to 0.9 dB: the compensation is a fine,
+# high-contrast pattern; docs/render.md). No B-frames, so that every chunk's timestamps are its
+# frame numbers (decode order = display order) and chunks join by copying their packets.
+_X264 = (("crf", "4"), ("preset", "medium"), ("bf", "0"))
+# 4:2:0 loses ~3 dB of the compensation to the halved chroma whatever the crf: a lighter crf.
+_X264_420 = (("crf", "12"), ("preset", "medium"), ("bf", "0"))
 
 #: The encodings ``render`` offers (docs/render.md gives the cost of each in dB).
 QUALITIES = {
     # 4:4:4: the compensation is a fine pattern in every channel; halving the chroma resolution
-    # (4:2:0) costs more of it than the codec does at crf 12 (docs/render.md).
+    # (4:2:0) costs more of it than the codec does (docs/render.md).
     "high": Quality("high", "libx264", "yuv444p", _X264, (".mp4", ".mkv", ".mov"),
-                    "H.264 High 4:4:4, crf 12"),
+                    "H.264 High 4:4:4, crf 4"),
     # For players and signage boxes that decode 4:2:0 H.264 only.
-    "compatible": Quality("compatible", "libx264", "yuv420p", _X264, (".mp4", ".mkv", ".mov"),
+    "compatible": Quality("compatible", "libx264", "yuv420p", _X264_420, (".mp4", ".mkv", ".mov"),
                           "H.264 High 4:2:0, crf 12"),
     # Lossless RGB: the projector's framebuffer bit for bit.
     "archive": Quality("archive", "ffv1", "bgr0", (), (".mkv",),

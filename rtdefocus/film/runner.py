@@ -13,7 +13,7 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .. import __version__
@@ -54,6 +54,7 @@ class RenderResult:
 
 
 def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: str = "high",
+           crf: int | None = None,
            workers: int = 2, scheduler=None, chunk_frames: int = DEFAULT_CHUNK_FRAMES,
            overlap: int = DEFAULT_OVERLAP, iterations: int = RENDER_ITERATIONS,
            method: str = "ycbcr", backend: str = "auto", work: str | Path | None = None,
@@ -71,8 +72,11 @@ def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: 
     film : any video file FFmpeg reads, with or without sound.
     output : ``.mp4`` / ``.mkv`` / ``.mov`` (``quality="archive"``: ``.mkv``).
     quality : "high" | "compatible" | "archive"
-        :data:`~rtdefocus.film.media.QUALITIES`: H.264 4:4:4 crf 12 (default), H.264 4:2:0
+        :data:`~rtdefocus.film.media.QUALITIES`: H.264 4:4:4 crf 4 (default), H.264 4:2:0
         crf 12 for players that decode nothing else, FFV1 lossless RGB.
+    crf : int, optional
+        The H.264 qualities' constant rate factor instead of theirs (0-51, lower: larger files,
+        closer to the uncompressed frames; docs/render.md gives the cost in dB per crf).
     workers : local worker processes (each opens its own devices); 0: in this process.
     scheduler : a Dask scheduler address (``"tcp://host:8786"``) or a ``distributed.Client``:
         the chunks run on its workers instead (they read ``setup`` and ``film`` and write the
@@ -98,33 +102,43 @@ def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: 
     """
     t0 = time.perf_counter()
     check_choice(quality, tuple(QUALITIES), "quality")
+    coding = QUALITIES[quality]
+    if crf is not None:
+        if not 0 <= check_int(crf, "crf", lo=0) <= 51:
+            raise InputError(f"crf must be 0-51 (H.264's scale; lower is closer to the frames); "
+                             f"got {crf}")
+        if coding.codec != "libx264":
+            raise InputError(f"crf applies to the H.264 qualities (high, compatible); quality "
+                             f"{quality!r} is lossless: leave crf out")
+        coding = replace(coding, options=tuple((k, str(crf) if k == "crf" else v)
+                                               for k, v in coding.options))
     check_int(workers, "workers", lo=0)
     check_int(chunk_frames, "chunk_frames", lo=1)
     check_int(overlap, "overlap", lo=0)
     check_int(iterations, "iterations", lo=1)
     output = Path(output)
-    check_container(output, QUALITIES[quality])
+    check_container(output, coding)
     _check_writable(output.parent)
     calib = _load_setup(setup)
-    if QUALITIES[quality].pix_fmt == "yuv420p" and any(v % 2 for v in calib.projector_size):
+    if coding.pix_fmt == "yuv420p" and any(v % 2 for v in calib.projector_size):
         raise InputError(f"quality {quality!r} (4:2:0) needs an even frame size; the projector is "
                          f"{calib.projector_size[0]}x{calib.projector_size[1]}: use --quality high")
     info = probe(film)
     settings = {"setup": file_digest(setup), "film": file_digest(film), "quality": quality,
-                "chunk_frames": chunk_frames, "overlap": overlap, "iterations": iterations,
+                "crf": crf, "chunk_frames": chunk_frames, "overlap": overlap, "iterations": iterations,
                 "method": method, "backend": backend, "rtdefocus": __version__}
     folder = WorkFolder(work or output.with_name(output.name + ".render"), settings)
     chunks = plan_chunks(info.n_frames, chunk_frames, overlap)
     done = folder.done(chunks)
     todo = [c for c in chunks if c.index not in done]
     job = Job(str(Path(setup).resolve()), settings["setup"],
-              FilmInfo(str(Path(film).resolve()), *_fields(info)[1:]), quality,
+              FilmInfo(str(Path(film).resolve()), *_fields(info)[1:]), coding,
               str(folder.path.resolve()),
               {"iterations": iterations, "method": method, "backend": backend})
     wp, hp = calib.projector_size
     log.info("render %s: %d frames at %.3g fps -> %dx%d, %d chunks (%d finished before), %s",
              film, info.n_frames, float(info.fps), wp, hp, len(chunks), len(done),
-             QUALITIES[quality].description)
+             coding.description + ("" if crf is None else f" (crf {crf})"))
     frames_done = sum(c.frames for c in chunks if c.index in done)
     if progress is not None:
         progress(frames_done, info.n_frames)

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .media import QUALITIES, ChunkWriter, FilmInfo, read_frames
+from .media import ChunkWriter, FilmInfo, Quality, read_frames
 from .plan import Chunk
 
 log = logging.getLogger(__name__)
@@ -30,7 +30,7 @@ class Job:
     setup: str                   # calibration file (.npz), a path every worker can read
     setup_digest: str
     film: FilmInfo               # its path, too, readable by every worker
-    quality: str
+    quality: Quality             # how the chunks are encoded
     work: str                    # the work sub-folder, writable by every worker
     compensator: dict = field(default_factory=dict)   # Compensator keyword arguments
 
@@ -85,7 +85,7 @@ def render_chunk(job: Job, chunk: Chunk) -> dict:
         tmp = out.with_name(f".{chunk.name}.{os.getpid()}.{threading.get_ident()}.tmp")
         written = 0
         try:
-            with ChunkWriter(tmp, QUALITIES[job.quality], job.film.fps, (wp, hp)) as writer:
+            with ChunkWriter(tmp, job.quality, job.film.fps, (wp, hp)) as writer:
                 for i, image in enumerate(read_frames(job.film, chunk.lead, chunk.stop),
                                           start=chunk.lead):
                     frame = comp.compensate(image, warm_start=True)
