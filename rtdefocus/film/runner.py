@@ -13,6 +13,7 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -91,6 +92,11 @@ def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: 
     Returns
     -------
     RenderResult
+
+    Notes
+    -----
+    Local workers are spawned processes, which import the calling script again: call
+    ``render`` from a script under ``if __name__ == "__main__":``.
 
     Raises
     ------
@@ -213,6 +219,11 @@ def _run(job: Job, todo: list[Chunk], workers: int, scheduler):
             try:
                 for f in as_completed(futures):
                     yield futures[f], f.result()
+            except BrokenProcessPool:
+                raise RtDefocusError(
+                    "a render worker process died (out of memory, killed, or a script that "
+                    "calls rd.render without `if __name__ == '__main__':`); the finished chunks "
+                    "are kept: run the render again to resume") from None
             except BaseException:
                 for f in futures:
                     f.cancel()
