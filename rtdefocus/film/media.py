@@ -56,7 +56,8 @@ class Quality:
 # high-contrast pattern; docs/render.md). No B-frames, so that every chunk's timestamps are its
 # frame numbers (decode order = display order) and chunks join by copying their packets.
 _X264 = (("crf", "4"), ("preset", "medium"), ("bf", "0"))
-# 4:2:0 loses ~3 dB of the compensation to the halved chroma whatever the crf: a lighter crf.
+# 4:2:0 loses ~3 dB of the compensation to the halved chroma, which no crf brings back: the
+# lighter crf keeps its files small for the modest players it is for.
 _X264_420 = (("crf", "12"), ("preset", "medium"), ("bf", "0"))
 
 #: The encodings ``render`` offers (docs/render.md gives the cost of each in dB).
