@@ -260,3 +260,20 @@ def test_bad_input_is_one_line_naming_the_fix(film, tmp_path, capsys, case):
               "output folder": ("not writable", "-o"),
               "container": (".mkv", "rename")}[case]
     assert all(e in err for e in expect), err
+
+
+def test_silent_film_of_another_size_fills_the_projector(film, tmp_path):
+    """A film without sound, of another size and rate, in one process: every frame out at the
+    projector's size, at the film's rate, no audio stream; finished chunks cleaned up."""
+    import av
+
+    rng = np.random.default_rng(1)
+    src = tmp_path / "silent.mkv"
+    write_film(src, [rng.integers(0, 256, (50, 70, 3), dtype=np.uint8) for _ in range(5)], fps=25,
+               tone_hz=None)
+    result = render(film["setup"], src, tmp_path / "out.mov", workers=0, chunk_frames=2)
+    assert result.chunks == 3 and not result.work.exists()
+    with av.open(str(result.output)) as c:
+        assert not c.streams.audio and c.streams.video[0].average_rate == 25
+    frames = list(decode_rgb(result.output))
+    assert len(frames) == 5 and all(f.shape == (PROJECTOR[1], PROJECTOR[0], 3) for f in frames)
