@@ -262,18 +262,12 @@ class ChunkWriter:
 
 
 def decode_rgb(path: str | Path):
-    """Yield the frames of a video file (a rendered film, a chunk) as RGB uint8, decoding YUV
-    with the colour space it is flagged with."""
+    """Yield the frames of a video file (a rendered film, a chunk) as RGB uint8 (YUV decoded
+    with the colour space the stream is flagged with)."""
     av = require_av()
     with av.open(str(path)) as container:
-        vs = container.streams.video[0]
-        for frame in container.decode(vs):
-            if frame.format.name.startswith("yuv"):
-                src = "ITU709" if frame.colorspace == 1 else None
-                yield frame.to_ndarray(format="rgb24", src_colorspace=src) if src else \
-                    frame.to_ndarray(format="rgb24")
-            else:
-                yield frame.to_ndarray(format="rgb24")
+        for frame in container.decode(container.streams.video[0]):
+            yield frame.to_ndarray(format="rgb24")
 
 
 def mux(out_path: str | Path, film: FilmInfo, chunks: list[tuple[int, Path]]) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from .. import __version__
 from ..checks import check_choice, check_int
 from ..errors import InputError, RtDefocusError
-from .media import QUALITIES, FilmInfo, check_container, mux, probe
+from .media import QUALITIES, check_container, mux, probe
 from .plan import Chunk, WorkFolder, file_digest, plan_chunks
 from .worker import Job, render_chunk, watch_parent
 
@@ -138,7 +138,7 @@ def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: 
     done = folder.done(chunks)
     todo = [c for c in chunks if c.index not in done]
     job = Job(str(Path(setup).resolve()), settings["setup"],
-              FilmInfo(str(Path(film).resolve()), *_fields(info)[1:]), coding,
+              replace(info, path=str(Path(film).resolve())), coding,
               str(folder.path.resolve()),
               {"iterations": iterations, "method": method, "backend": backend})
     wp, hp = calib.projector_size
@@ -167,11 +167,6 @@ def render(setup: str | Path, film: str | Path, output: str | Path, *, quality: 
                 pass                  # not empty: another render's chunks are there
     return RenderResult(output, info.n_frames, float(info.fps), len(chunks), sorted(rendered),
                         sorted(done), time.perf_counter() - t0, folder.path)
-
-
-def _fields(info: FilmInfo) -> tuple:
-    return (info.path, info.n_frames, info.fps, info.size, info.time_base, info.first_pts,
-            info.audio)
 
 
 def _load_setup(setup):
