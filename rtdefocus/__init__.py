@@ -6,6 +6,7 @@ planes: two walls at a corner, a pillar, a room's corner with its ceiling.
 >>> calib = rd.calibrate(procam)                     # everything learnt through procam.capture()
 >>> comp = rd.Compensator(calib)                     # OpenCL when a device exists, else NumPy
 >>> frame = comp.compensate(image)                   # (Hp, Wp, 3) uint8 for the projector
+>>> rd.render("setup.npz", "film.mp4", "film_corner.mp4")   # a film for any player (extra: render)
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ _LAZY = {
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
     "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
+    "render": ("rtdefocus.film", "render"),
 }
 
 
@@ -47,7 +49,7 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam",
+    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam", "render",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
     "DeviceError", "InputError", "InputTypeError", "__version__",
 ]

@@ -5,8 +5,8 @@ Sizes are written ``WIDTHxHEIGHT`` (e.g. ``800x600``).
 
 Each subcommand is a pair: ``_add_NAME(subparsers)`` declares it, ``cmd_NAME(args)`` runs it;
 register both in ``COMMANDS`` below. The subcommands live by what they are for:
-:mod:`.setup` (info, simulate, calibrate, check), :mod:`.show` (warp, play), :mod:`.study`
-(demo, eval); shared helpers in :mod:`.common`.
+:mod:`.setup` (info, simulate, calibrate, check), :mod:`.show` (warp, play), :mod:`.render`
+(render), :mod:`.study` (demo, eval); shared helpers in :mod:`.common`.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import sys
 from .. import __version__
 from ..errors import RtDefocusError
 from .common import parse_size, read_image, write_image
+from .render import add_render
 from .setup import add_aim, add_calibrate, add_cameras, add_check, add_info, add_simulate
 from .show import add_play, add_warp
 from .study import add_demo, add_eval, eval_options
@@ -37,12 +38,13 @@ examples:
   rtdefocus demo -o demo_out                       the whole story on the virtual cubicle
   rtdefocus eval --quick                           ablations: methods x kernel layouts, convergence
   rtdefocus play setup.npz talk/ --screen 1        slides on the projector (also video, camera:0)
+  rtdefocus render setup.npz film.mp4 -o out.mp4   the film compensated once, for any player
 """
 
 
 # --------------------------------------------------------------------------- main
 COMMANDS = [add_info, add_cameras, add_aim, add_simulate, add_calibrate, add_warp, add_play,
-            add_check, add_demo, add_eval]
+            add_check, add_demo, add_eval, add_render]
 
 
 def build_parser() -> argparse.ArgumentParser:

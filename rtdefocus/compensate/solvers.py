@@ -232,6 +232,7 @@ class Solver:
         # the Hessian back to the plain blur's (ops.lipschitz_factor = 1; NumpyOps.precond).
         self.L = (lipschitz_estimate(ops.psfs, ops.metric, colour=colour) * L_MARGIN
                   * ops.lipschitz_factor)
+        self._L_estimate = self.L
         # The spatial preconditioner: the gradient G is M_F Fᵀ q wherever FISTA forms one
         # (_gradient), so that G_prev and the momentum are preconditioned alike.
         # (any metric, also one without a colour preconditioner; not with a residual scale)
@@ -368,6 +369,10 @@ class Solver:
         ``self.target`` next (then :meth:`target_changed`)."""
         self.target, self.target_prev = self.target_prev, self.target
         self._carried = (self._momentum, self._theta, self._beta)
+        # Each frame starts again from the estimated step: near convergence float32 rounding
+        # makes plain steps look uphill and halves the step, and carried over frame after frame
+        # those halvings stalled a video's solve (the step 4000x too small after a still).
+        self.L = self._L_estimate
 
     def start_from_motion(self, d_cold: float | None = None) -> bool:
         """Start from the previous frame's correction moved along the motion (on the backend,
