@@ -32,8 +32,8 @@ def _procam(noise=None, seed=0):
 def film(tmp_path_factory):
     """A set-up file (the simulator's oracle calibration), a 30-frame film with a tone (still,
     pans, a cut, a zoom, a fade), its decoded frames and their serial compensation."""
-    from rtdefocus.study.eval_video import QUICK_SEGMENTS, make_clip
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.eval_video import QUICK_SEGMENTS, make_clip
 
     root = tmp_path_factory.mktemp("render")
     calib = oracle_calibration(_procam())
@@ -207,9 +207,9 @@ def test_cli_default_quality_keeps_the_compensation(tmp_path, capsys):
     dominates): the camera's view of every decoded frame, still and panning, within 0.3 dB of
     the uncompressed compensation's and well above geometry only; the tone's packets exact."""
     from rtdefocus import cli
+    from rtdefocus.sim import oracle_calibration
     from rtdefocus.study.eval_video import Segment, make_clip
     from rtdefocus.study.scores import camera_view, psnr, rect_mask
-    from rtdefocus.sim import oracle_calibration
 
     size, camera = (800, 600), (1280, 960)
     procam = rd.sim.VirtualProCam("cubicle", projector_size=size, camera_size=camera, noise=0.0)

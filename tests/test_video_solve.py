@@ -4,8 +4,8 @@ rounding makes a plain step look uphill) is not carried into the next frames."""
 from __future__ import annotations
 
 import rtdefocus as rd
-from rtdefocus.study.eval_video import Segment, make_clip
 from rtdefocus.sim import oracle_calibration
+from rtdefocus.study.eval_video import Segment, make_clip
 
 
 def test_moving_frames_after_a_still_converge_like_a_cold_start():

@@ -34,11 +34,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import rtdefocus as rd
-    from rtdefocus.study.eval_video import QUICK_SEGMENTS, make_clip
-    from rtdefocus.study.machine import machine_info
     from rtdefocus.film import DEFAULT_OVERLAP, render
     from rtdefocus.film.media import write_film
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.eval_video import QUICK_SEGMENTS, make_clip
+    from rtdefocus.study.machine import machine_info
 
     w, h = (int(v) for v in args.size.split("x"))
     tmp = Path(tempfile.mkdtemp(prefix="bench_render_"))

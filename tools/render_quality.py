@@ -38,11 +38,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import rtdefocus as rd
-    from rtdefocus.study.eval_video import QUICK_SEGMENTS, SEGMENTS, make_clip
     from rtdefocus.film import DEFAULT_OVERLAP, QUALITIES, RENDER_ITERATIONS, render
     from rtdefocus.film.media import ChunkWriter, decode_rgb, probe, read_frames, write_film
-    from rtdefocus.study.scores import camera_view, psnr, rect_mask
     from rtdefocus.sim import oracle_calibration
+    from rtdefocus.study.eval_video import QUICK_SEGMENTS, SEGMENTS, make_clip
+    from rtdefocus.study.scores import camera_view, psnr, rect_mask
 
     w, h = (int(v) for v in args.size.split("x"))
     overlap = DEFAULT_OVERLAP if args.overlap is None else args.overlap
