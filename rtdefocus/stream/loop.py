@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import collections
 import logging
-import math
 import queue
 import threading
 import time
@@ -85,18 +84,20 @@ ProgressFn = Callable[[int, "int | None"], None]
 #: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
 #: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises the margin by
 #: CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after CATCH_UP_CALM moving
-#: frames without a late one, a wait that doubles with each late frame (up to CATCH_UP_CALM_MAX)
-#: and starts again once the margin is back at its base. There are no blind probes: a frame is
+#: frames without a late one, a wait that doubles with each late frame while the margin is
+#: raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
 #: compensated only where the measured costs say it will be on time, so on a device that
 #: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
 CATCH_UP_SHARE = 0.7
 CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX = 1.25, 4.0
 CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
-#: A still picture (the same frame again: a paused file, a still shot) whose first compensation
-#: does not fit two periods is compensated once it has stayed this many times as long as that
-#: compensation takes; until then, and for its refinements that do not fit, it is shown with
-#: geometry only or as last compensated.
-CATCH_UP_STILL_WAIT = 2
+#: A still picture (the same frame again: a paused file, a still shot) whose compensation does
+#: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
+#: long as that compensation takes with the safety margin: the frames a settle drops are copies
+#: of the picture unless the picture changes during it, which a still that lasted that long
+#: seldom does. Before it the picture is shown with geometry only, after it as compensated
+#: (refined further only where a refinement fits two periods).
+CATCH_UP_STILL_WAIT = 3
 
 
 class _End:
@@ -209,7 +210,8 @@ class Player(SlidesMixin):
         self._calm = CATCH_UP_CALM                   # ... moving frames before it steps back
         self._calm_left = CATCH_UP_CALM
         self._lost: set[int] = set()                 # frames dropped that were not copies
-        self._still_run = 0                          # frames in a row with the same picture
+        self._still_since = 0                        # index of the current picture's first frame
+        self._settled = False                        # ... and whether it was settled (catch-up)
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
 
@@ -347,12 +349,11 @@ class Player(SlidesMixin):
         does (the previous correction carried along the motion: never farther from the target
         than geometry only). Where nothing fits: ``("geometry", None)`` (the next frame would be
         dropped and this one shown late: geometry only keeps up instead); for a picture that
-        did not change since the frame before (a still, a paused video file) ``("reshow",
-        None)`` once it is compensated (its last output again, at no cost), and before that
-        ``("settle", minimum)`` (compensate, though it may end late) once it has stayed for
-        :data:`CATCH_UP_STILL_WAIT` times the periods that takes (a still that lasted that long
-        is unlikely to end during it; until then geometry only). Outside the catch-up:
-        ``("compensate", iterations)``."""
+        did not change since the frame before (a still, a paused video file): ``("reshow",
+        None)`` once it is compensated (its last output again, at no cost); before that, once,
+        ``("settle", n)`` (compensate, though it may end late) where the picture has stayed
+        :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else ``("geometry", None)``.
+        Outside the catch-up: ``("compensate", iterations)``."""
         b = self.budget
         go = ("compensate", iterations)
         if (b is None or iterations is None or not self.catch_up or not self.live
@@ -369,9 +370,14 @@ class Player(SlidesMixin):
         if still:
             if repeat and self._last_out is not None:
                 return "reshow", None
-            cost = self._margin * (rest + b.minimum * b.per_iteration)
-            if self._still_run >= CATCH_UP_STILL_WAIT * math.ceil(cost / b.period):
-                return "settle", b.minimum
+            # One settle per picture: one that has lasted CATCH_UP_STILL_WAIT times as long as
+            # its compensation takes seldom ends during it (a late frame drops copies of it).
+            lasted = (frame.index - self._still_since) * b.period
+            room = lasted / (CATCH_UP_STILL_WAIT * self._margin) - rest
+            n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
+            if not self._settled and n >= b.minimum:
+                self._settled = True
+                return "settle", min(iterations, n)
             return "geometry", None
         if left >= 0:
             return "compensate", 0
@@ -386,8 +392,9 @@ class Player(SlidesMixin):
             return
         base = 1.0 / CATCH_UP_SHARE
         if compensated and time.perf_counter() - frame.t_read > 2.0 * b.period:
+            if self._margin > base:          # late again before the margin was back
+                self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
             self._margin = min(self._margin * CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX)
-            self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
             self._calm_left = self._calm
             log.debug("catch-up: frame %d ended late; safety margin %.2f", frame.index,
                       self._margin)
@@ -612,7 +619,8 @@ class Player(SlidesMixin):
                 # compensated, which then skips the warp and the motion estimate (budget kinds)
                 still = self._same_as_previous(frame.image)
                 repeat = still and self._prev_compensated
-                self._still_run = self._still_run + 1 if still else 0
+                if not still:
+                    self._still_since, self._settled = frame.index, False
                 action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
                                                           still, repeat)
                 geometry = action == "geometry"
