@@ -244,11 +244,13 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
             self.shown: dict[int, tuple[np.ndarray, int]] = {}
             self.player = None
             self._geometry = 0
+            self.start_only = 0     # compensated frames shown from their start (0 iterations)
 
         def write(self, frame: np.ndarray, index: int) -> None:
             g = self.player.stats.geometry_frames
-            its = (0 if g > self._geometry or self.player.controls.mode != "full"
-                   else int(comp.last_info.get("iterations", 0)))
+            solved = g == self._geometry and self.player.controls.mode == "full"
+            its = int(comp.last_info.get("iterations", 0)) if solved else 0
+            self.start_only += solved and its == 0
             self._geometry = g
             self.shown[index] = (frame.copy(), its)
 
@@ -258,6 +260,7 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
     if geometry_only:
         player.controls.mode = "geometry"
     stats = player.run()
+    stats.start_only = sink.start_only
     return sink.shown, stats
 
 
@@ -391,7 +394,8 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                                      geometry_only=m.startswith("geo"), slowdown=k)
         window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
                            "dropped_copies": st.dropped_copies,
-                           "geometry_only": st.geometry_frames, "fps": st.fps}
+                           "geometry_only": st.geometry_frames, "start_only": st.start_only,
+                           "fps": st.fps}
     on_screen = dict.fromkeys(windows)        # what each window shows at the current frame
 
     records = []

@@ -84,7 +84,9 @@ def video_markdown(result: dict) -> str:
         lines.append(f"| {mode_label(mode)} | " + " | ".join(cells) + f" | {still} | {cut} | "
                      f"{_f(r['iterations_median'], 'g')} | {_f(r['ms_median'], '.0f')} |")
     for mode, w in (result.get("window") or {}).items():
-        caught = (f" ({w['geometry_only']} with geometry only to keep up)"
+        start = (f", {w['start_only']} from the previous correction carried along the motion"
+                 if w.get("start_only") else "")
+        caught = (f" ({w['geometry_only']} with geometry only to keep up{start})"
                   if mode.startswith("window") else "")
         copies = w.get("dropped_copies", 0)
         copies = f" ({copies} of them copies of the picture on the screen)" if copies else ""

@@ -112,3 +112,13 @@ def test_window_on_a_slowed_device_keeps_the_promise(tmp_path):
     last_still = result["frames"][79]
     assert last_still["segment"] == "still" and last_still["gain"][mode] > 0.3, last_still["gain"]
     assert w["geometry_only"] >= 12 + 8, w          # moving content: geometry only
+
+
+def test_slowdown_below_one_is_a_clear_error(tmp_path, capsys):
+    """``--slowdown`` takes factors >= 1 (1: this machine); 0.5 is refused before any work."""
+    from rtdefocus import cli
+
+    code = cli.main(["eval", "--video", "--quick", "-o", str(tmp_path), "--slowdown", "1,0.5"])
+    assert code != 0
+    assert "slowdown" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

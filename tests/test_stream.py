@@ -196,6 +196,7 @@ def test_live_source_faster_than_solver_drops_but_never_reorders(comp):
     sink = RecordingSink()
     stats = play(slow, ArraySource(synthetic_frames(n), fps=fps, live=True), sink, iterations=20)
     assert stats.dropped > 0, "a source 4x faster than the solver must drop frames"
+    assert stats.dropped_copies == 0, "every frame is a new picture: none dropped is a copy"
     assert stats.frames_in == n
     assert stats.frames_out + stats.dropped == n, "every frame is either shown or counted dropped"
     assert np.all(np.diff(sink.indices) > 0), "frames reordered"
@@ -824,3 +825,19 @@ def test_budget_leaves_cheap_new_frames_out_of_the_deadline():
     b.update(0.030, 0.004, 1, deadline=False)         # a cut
     assert b.frame_seconds(0, deadline=True) == pytest.approx(0.050, abs=1e-9)
     assert b.frame_seconds(0) < 0.050
+
+
+def test_budget_expects_a_repeat_cost_until_one_is_measured():
+    """``expect`` gives an unmeasured kind its rest (a still picture's repeat: all but the warp
+    and the start); the kind's first measured frame replaces it, and a measured kind keeps its
+    own."""
+    b = IterationBudget(30.0)
+    b.update(0.104, 0.004, 1)                                # a moving frame: rest 0.100
+    assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.100)
+    b.expect(0.010, repeat=True)
+    assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.010)
+    assert b.frame_seconds(0, repeat=False, deadline=True) == pytest.approx(0.100)
+    b.update(0.024, 0.004, 1, repeat=True)                   # measured: rest 0.020
+    assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.020)
+    b.expect(0.001, repeat=True)
+    assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.020)

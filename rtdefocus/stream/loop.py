@@ -97,7 +97,7 @@ CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
 #: of the picture unless the picture changes during it, which a still that lasted that long
 #: seldom does. Before it the picture is shown with geometry only, after it as compensated
 #: (refined further only where a refinement fits two periods).
-CATCH_UP_STILL_WAIT = 3
+CATCH_UP_STILL_WAIT = 4
 
 
 class _End:
@@ -445,8 +445,12 @@ class Player(SlidesMixin):
         # A new frame that started cold (a cut, the first frame) skipped the motion estimate and
         # the warm start: its cost says little about the next moving frame's deadline.
         moving_cost = repeat or info.get("start") not in ("cut", "cold")
-        self.budget.update(time.perf_counter() - t_start, solve, its, repeat=repeat,
-                           deadline=moving_cost)
+        frame_seconds = time.perf_counter() - t_start
+        self.budget.update(frame_seconds, solve, its, repeat=repeat, deadline=moving_cost)
+        if not repeat and "warp" in sec and "decode" in sec:
+            # What the same picture costs again: all but the warp and the start, which a
+            # repeat skips (until a repeat is measured; else a slow device never tries one).
+            self.budget.expect(frame_seconds - solve - sec["warp"] - sec["decode"], repeat=True)
 
     def _idle(self, seconds: float = 0.01) -> None:
         window = getattr(self.sink, "window", None)
