@@ -82,10 +82,10 @@ ProgressFn = Callable[[int, "int | None"], None]
 #: ends before the frame after next arrives (two periods after it was read); otherwise it is
 #: shown with geometry only. The margin starts at 1 / CATCH_UP_SHARE (1.43): a moving frame's
 #: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
-#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises the margin by
-#: CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after CATCH_UP_CALM moving
-#: frames without a late one, a wait that doubles with each late frame while the margin is
-#: raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
+#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises
+#: the margin by CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after
+#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
+#: while the margin is raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
 #: compensated only where the measured costs say it will be on time, so on a device that
 #: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
 CATCH_UP_SHARE = 0.7
