@@ -122,6 +122,9 @@ def add_eval(sub):
                    help="fixed iterations per frame, each warm and cold (default 1,2,4,8)")
     v.add_argument("--fps", default=None, metavar="F,F",
                    help="wall-clock budgets in frames per second (default 24,30,60)")
+    v.add_argument("--slowdown", default=None, metavar="K,K",
+                   help="device speeds of the window rows: 2 plays the window on a device that "
+                   "compensates a frame 2x slower than this machine (default 1)")
     v.add_argument("--offline-iterations", type=int, default=None, metavar="N",
                    help="cold iterations per frame of the offline ceiling (default 40)")
     v.add_argument("--calibration", metavar="FILE", help="a calibration file for the preset and "
@@ -166,6 +169,7 @@ def cmd_eval_video(args) -> int:
             "preset": args.preset, "calibration": args.calibration, "seed": args.seed,
             "plot": not args.no_plot}
     for key, val in (("budgets", _numbers(args.budgets, int)), ("fps", _numbers(args.fps, float)),
+                     ("slowdown", _numbers(args.slowdown, float)),
                      ("offline", args.offline_iterations)):
         if val is not None:
             opts[key] = val

@@ -115,6 +115,7 @@ class IterationBudget:
         self._recent: dict[bool, collections.deque] = {k: collections.deque(maxlen=RECENT)
                                                        for k in (False, True)}
         self._iterations = {False: start, True: start}
+        self._expected = {False: False, True: False}   # the kind's rest is only expected
 
     @property
     def iterations(self) -> int:
@@ -145,6 +146,16 @@ class IterationBudget:
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
+    def expect(self, rest: float, repeat: bool = True) -> None:
+        """An expected rest (seconds, all but the solve) for a kind not measured yet; the
+        kind's first measured frame replaces it."""
+        repeat = bool(repeat)
+        if self._overhead[repeat] is None or self._expected[repeat]:
+            self._overhead[repeat] = max(0.0, float(rest))
+            self._recent[repeat].clear()
+            self._recent[repeat].append(self._overhead[repeat])
+            self._expected[repeat] = True
+
     def _measured_kind(self, repeat: bool) -> bool:
         """The kind whose averages stand for ``repeat``: its own once measured, else the other."""
         repeat = bool(repeat)
@@ -162,6 +173,10 @@ class IterationBudget:
         if iterations > 0:
             self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
         rest = max(0.0, frame_seconds - solve_seconds)
+        if self._expected[repeat]:                     # the first measured frame of the kind
+            self._expected[repeat] = False
+            self._overhead[repeat] = None
+            self._recent[repeat].clear()
         self._overhead[repeat] = self._ema(self._overhead[repeat], rest)
         if deadline or not self._recent[repeat]:
             self._recent[repeat].append(rest)

@@ -30,11 +30,14 @@ Drop policy
 the queue holds ``queue_size`` frames (default 1). When it is full the decoder removes the
 oldest queued frame and counts it in ``stats.dropped`` before adding the new one, so the
 solver always gets the newest frame, frames keep their capture order (the queue is FIFO and
-only the decoder removes from its head when dropping), and the source never waits. The
+only the decoder removes from its head when dropping), and the source never waits. A dropped
+frame that repeats the picture of the frame before it (a still, a paused camera) loses nothing
+on the screen: ``stats.dropped_copies`` counts those among ``stats.dropped``. The
 per-frame iteration budget adapts to hold the target frame rate
 (:class:`~rtdefocus.stream.controls.IterationBudget`). Where even its minimum does not fit (a
-slow device on moving content), a frame whose compensation would end after the frame after
-next has arrived is shown with geometry only (``catch_up``): a warp costs a fraction of a
+slow device on moving content), a frame whose compensation, by its measured cost times a safety
+margin, would end after the frame after next has arrived is shown with geometry only
+(``catch_up``; see :data:`CATCH_UP_SHARE`): a warp costs a fraction of a
 solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
 screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
 ``stats.geometry_frames`` counts them). Before the first frame a live player runs the
@@ -51,6 +54,7 @@ budget and the stats overlay are in :mod:`rtdefocus.stream.controls`.
 
 from __future__ import annotations
 
+import collections
 import logging
 import queue
 import threading
@@ -74,21 +78,26 @@ log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, "int | None"], None]
 
-#: Catch-up: a frame is shown with geometry only when its compensation is expected to end later
-#: than this share of two periods after it was read (the frame after next arrives at two). The
-#: margin is a moving frame's spread on a CPU device: 50-62 ms for the same work (800x600, 2
-#: PoCL cores); at 0.95 a frame that waited ~10 ms behind a still one still went and ran late.
-CATCH_UP_SHARE = 0.85
-#: After this many frames in a row shown with geometry only, the next is compensated anyway (at
-#: the minimum budget), a probe: geometry frames measure nothing, and the device may have become
-#: faster (another program's load gone, a simpler picture). Soon where a fresh frame's expected
-#: cost is within CATCH_UP_NEAR of the deadline (the estimate may be just over it, and such a
-#: probe is seldom late), rarely (CATCH_UP_PROBE_FAR) where it is far over it: on moving content
-#: a late frame is ~10 dB below a fresh one at 14 px/frame. Each compensated frame that ends
-#: late (after the frame after next has arrived) doubles the wait, up to CATCH_UP_PROBE_MAX;
-#: one in time sets it back.
-CATCH_UP_PROBE, CATCH_UP_PROBE_FAR, CATCH_UP_PROBE_MAX = 2, 32, 256
-CATCH_UP_NEAR = 1.15
+#: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
+#: ends before the frame after next arrives (two periods after it was read); otherwise it is
+#: shown with geometry only. The margin starts at 1 / CATCH_UP_SHARE (1.43): a moving frame's
+#: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
+#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises
+#: the margin by CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after
+#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
+#: while the margin is raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
+#: compensated only where the measured costs say it will be on time, so on a device that
+#: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
+CATCH_UP_SHARE = 0.7
+CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX = 1.25, 4.0
+CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
+#: A still picture (the same frame again: a paused file, a still shot) whose compensation does
+#: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
+#: long as that compensation takes with the safety margin: the frames a settle drops are copies
+#: of the picture unless the picture changes during it, which a still that lasted that long
+#: seldom does. Before it the picture is shown with geometry only, after it as compensated
+#: (refined further only where a refinement fits two periods).
+CATCH_UP_STILL_WAIT = 4
 
 
 class _End:
@@ -199,8 +208,13 @@ class Player(SlidesMixin):
         self.catch_up = bool(catch_up)
         self._prev_input: np.ndarray | None = None   # the last input (budget kinds, catch-up)
         self._prev_compensated = False               # ... and whether it was compensated
-        self._geometry_run = 0                       # frames in a row shown with geometry only
-        self._probe_every = CATCH_UP_PROBE           # ... before a probe (see CATCH_UP_PROBE)
+        self._margin = 1.0 / CATCH_UP_SHARE          # the catch-up's safety margin on costs
+        self._calm = CATCH_UP_CALM                   # ... moving frames before it steps back
+        self._calm_left = CATCH_UP_CALM
+        self._lost: set[int] = set()                 # frames dropped that were not copies
+        self._still_since = 0                        # index of the current picture's first frame
+        self._settled = False                        # ... and whether it was settled (catch-up)
+        self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
 
     def settings(self) -> dict:
@@ -328,43 +342,72 @@ class Player(SlidesMixin):
         st.frame_out()
 
     def _catch_up_iterations(self, frame: Frame, iterations: int | None, still: bool,
-                             repeat: bool) -> tuple[bool, int | None]:
-        """Realtime, full mode, adaptive budget: ``(False, n)`` with the iterations n that let
-        ``frame`` end before the frame after next arrives (one period after the next one), or
-        ``(True, None)`` when not even the minimum does (the next frame would then be dropped
-        and this one shown late: geometry only keeps up instead). Otherwise ``(False,
-        iterations)``. A picture that did not change since the frame before is compensated
-        whatever the time (dropping a copy of it shows nothing else, and once compensated its
-        repeats are cheap), and so is a probe after a run of geometry frames (see
-        :data:`CATCH_UP_PROBE`), at the minimum budget (geometry frames measure nothing)."""
+                             repeat: bool) -> tuple[str, int | None]:
+        """Realtime, full mode, adaptive budget: what to show for ``frame``, as ``(action, n)``.
+
+        ``("compensate", n)`` with the iterations n (at most ``iterations``) whose expected
+        cost, times the safety margin, lets ``frame`` end before the frame after next arrives
+        (one period after the next one), or n = 0 where no iteration fits but the start alone
+        does (the previous correction carried along the motion: never farther from the target
+        than geometry only). Where nothing fits: ``("geometry", None)`` (the next frame would be
+        dropped and this one shown late: geometry only keeps up instead); for a picture that
+        did not change since the frame before (a still, a paused video file): ``("reshow",
+        None)`` once it is compensated (its last output again, at no cost); before that, once,
+        ``("settle", n)`` (compensate, though it may end late) where the picture has stayed
+        :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else ``("geometry", None)``.
+        Outside the catch-up: ``("compensate", iterations)``."""
         b = self.budget
+        go = ("compensate", iterations)
         if (b is None or iterations is None or not self.catch_up or not self.live
-                or self.controls.mode != "full" or still):
-            return False, iterations
+                or self.controls.mode != "full"):
+            return go
         rest = b.frame_seconds(0, repeat, deadline=True)
         if rest is None:
-            return False, iterations
-        deadline = CATCH_UP_SHARE * 2.0 * b.period
-        left = deadline - (time.perf_counter() - frame.t_read) - rest
-        fit = int(left / b.per_iteration) if b.per_iteration > 0 else iterations
+            return go
+        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - self._margin * rest
+        per_it = self._margin * b.per_iteration
+        fit = int(left / per_it) if per_it > 0 else iterations
         if fit >= b.minimum:
-            return False, min(iterations, fit)
-        near = rest + b.minimum * b.per_iteration <= CATCH_UP_NEAR * deadline
-        wait = self._probe_every if near else max(CATCH_UP_PROBE_FAR, self._probe_every)
-        if self._geometry_run >= wait:                # a probe: measure the device again
-            return False, b.minimum
-        return True, None
+            return "compensate", min(iterations, fit)
+        if still:
+            if repeat and self._last_out is not None:
+                return "reshow", None
+            # One settle per picture: one that has lasted CATCH_UP_STILL_WAIT times as long as
+            # its compensation takes seldom ends during it (a late frame drops copies of it).
+            lasted = (frame.index - self._still_since) * b.period
+            room = lasted / (CATCH_UP_STILL_WAIT * self._margin) - rest
+            n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
+            if not self._settled and n >= b.minimum:
+                self._settled = True
+                return "settle", min(iterations, n)
+            return "geometry", None
+        if left >= 0:
+            return "compensate", 0
+        return "geometry", None
 
-    def _judge_catch_up(self, frame: Frame) -> None:
-        """After a compensated frame: one that ended after the frame after next arrived doubles
-        the wait before the next probe, one in time sets it back (see :data:`CATCH_UP_PROBE`)."""
+    def _judge_catch_up(self, frame: Frame, compensated: bool) -> None:
+        """After a moving frame: a compensated one that ended after the frame after next
+        arrived raises the safety margin; moving frames without a late one step it back (see
+        :data:`CATCH_UP_SHARE`)."""
         b = self.budget
         if b is None:
             return
-        if time.perf_counter() - frame.t_read > 2.0 * b.period:
-            self._probe_every = min(2 * self._probe_every, CATCH_UP_PROBE_MAX)
-        else:
-            self._probe_every = CATCH_UP_PROBE
+        base = 1.0 / CATCH_UP_SHARE
+        if compensated and time.perf_counter() - frame.t_read > 2.0 * b.period:
+            if self._margin > base:          # late again before the margin was back
+                self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
+            self._margin = min(self._margin * CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX)
+            self._calm_left = self._calm
+            log.debug("catch-up: frame %d ended late; safety margin %.2f", frame.index,
+                      self._margin)
+            return
+        if self._margin <= base:
+            self._calm = self._calm_left = CATCH_UP_CALM
+            return
+        self._calm_left -= 1
+        if self._calm_left <= 0:
+            self._margin = max(base, self._margin / CATCH_UP_MARGIN_STEP)
+            self._calm_left = self._calm
 
     def _warm_up(self) -> None:
         """Live playback with an adaptive budget: run the Compensator's video path once before
@@ -404,8 +447,12 @@ class Player(SlidesMixin):
         # A new frame that started cold (a cut, the first frame) skipped the motion estimate and
         # the warm start: its cost says little about the next moving frame's deadline.
         moving_cost = repeat or info.get("start") not in ("cut", "cold")
-        self.budget.update(time.perf_counter() - t_start, solve, its, repeat=repeat,
-                           deadline=moving_cost)
+        frame_seconds = time.perf_counter() - t_start
+        self.budget.update(frame_seconds, solve, its, repeat=repeat, deadline=moving_cost)
+        if not repeat and "warp" in sec and "decode" in sec:
+            # What the same picture costs again: all but the warp and the start, which a
+            # repeat skips (until a repeat is measured; else a slow device never tries one).
+            self.budget.expect(frame_seconds - solve - sec["warp"] - sec["decode"], repeat=True)
 
     def _idle(self, seconds: float = 0.01) -> None:
         window = getattr(self.sink, "window", None)
@@ -421,6 +468,7 @@ class Player(SlidesMixin):
         read = st.stages["read"]   # created before the thread starts: no dict resize here
         pace = (1.0 / self.fps) if (self.sink.realtime and not src.live) else None
         t_next: float | None = None
+        recent: collections.deque = collections.deque(maxlen=self.queue_size + 2)  # (copies)
         try:
             while not self._stop.is_set():
                 if pace is not None:
@@ -441,7 +489,8 @@ class Player(SlidesMixin):
                 read.add(time.perf_counter() - t0)
                 st.frames_in += 1
                 if self.live:
-                    self._put_latest(q, frame)
+                    recent.append(frame)
+                    self._put_latest(q, frame, recent)
                 else:
                     self._put_blocking(q, frame)
         except BaseException as exc:  # handed to the main thread, which re-raises it
@@ -451,7 +500,11 @@ class Player(SlidesMixin):
             return
         self._put_blocking(q, _END)
 
-    def _put_latest(self, q: queue.Queue, item) -> None:
+    def _put_latest(self, q: queue.Queue, item, recent=()) -> None:
+        """Queue ``item``, dropping the oldest waiting frame when the queue is full. A dropped
+        frame with the same picture as the frame queued before it (``recent``: the last frames
+        queued, in order), whose picture reached the screen, is also counted in
+        ``stats.dropped_copies``."""
         while True:
             try:
                 q.put_nowait(item)
@@ -463,6 +516,24 @@ class Player(SlidesMixin):
                     continue
                 if isinstance(stale, Frame):
                     self.stats.dropped += 1
+                    if self._is_copy(stale, recent):
+                        self.stats.dropped_copies += 1
+                    else:
+                        self._lost.add(stale.index)
+
+    def _is_copy(self, stale: Frame, recent) -> bool:
+        """``stale`` repeats the picture of the frame queued just before it, and that one's
+        picture reached the screen (taken by the main thread, or itself a copy)."""
+        before = None
+        for f in recent:
+            if f is stale:
+                break
+            before = f
+        else:
+            return False
+        return (before is not None and before.index not in self._lost
+                and before.image.shape == stale.image.shape
+                and np.array_equal(before.image, stale.image))
 
     def _put_blocking(self, q: queue.Queue, item) -> None:
         while not self._stop.is_set():
@@ -565,18 +636,23 @@ class Player(SlidesMixin):
                 # compensated, which then skips the warp and the motion estimate (budget kinds)
                 still = self._same_as_previous(frame.image)
                 repeat = still and self._prev_compensated
-                geometry, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
-                                                            still, repeat)
+                if not still:
+                    self._still_since, self._settled = frame.index, False
+                action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
+                                                          still, repeat)
+                geometry = action == "geometry"
                 self._prev_compensated = not geometry and self.controls.mode == "full"
-                self._geometry_run = self._geometry_run + 1 if geometry else 0
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
+                elif action == "reshow":
+                    self._present(self._last_out, frame.index, frame.t_read, t0)
                 else:
                     out = self._render(frame.image, iterations=iters)
+                    self._last_out = out if self.controls.mode == "full" else None
                     self._present(out, frame.index, frame.t_read, t0)
                     self._update_budget(t0, repeat)
-                    if not still:
-                        self._judge_catch_up(frame)
+                if not still or action == "compensate":   # (a settle is expected to run long)
+                    self._judge_catch_up(frame, compensated=action == "compensate")
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)

@@ -73,6 +73,9 @@ class LoopStats:
         Frames written to the sink (presented, encoded, saved).
     dropped : int
         Frames decoded but never shown because a newer one arrived first (live sources only).
+    dropped_copies : int
+        Of ``dropped``, those that repeated the picture of the frame before them, which reached
+        the screen (a still, a paused camera): nothing the audience would have seen is lost.
     geometry_frames : int
         Frames shown with geometry only to keep up (realtime playback, ``Player(catch_up=True)``).
     stages : dict[str, Series]
@@ -102,6 +105,7 @@ class LoopStats:
         self.frames_in = 0
         self.frames_out = 0
         self.dropped = 0
+        self.dropped_copies = 0
         self.geometry_frames = 0
         self.stages: dict[str, Series] = {}
         self.iterations = Series()
@@ -176,7 +180,7 @@ class LoopStats:
         return {
             "source": self.source, "sink": self.sink,
             "frames_in": self.frames_in, "frames_out": self.frames_out, "dropped": self.dropped,
-            "geometry_frames": self.geometry_frames,
+            "dropped_copies": self.dropped_copies, "geometry_frames": self.geometry_frames,
             "seconds": round(self.seconds, 4), "fps": round(self.fps, 3),
             "stages_ms": {k: {m: round(v, 3) if isinstance(v, float) else v
                               for m, v in s.as_dict(1e3).items()} for k, s in self.stages.items()},
@@ -191,7 +195,8 @@ class LoopStats:
 
     def summary(self) -> str:
         """A printable multi-line summary (the CLI prints it at the end of every run)."""
-        lines = [f"{self.frames_out} frames out, {self.frames_in} in, {self.dropped} dropped in "
+        copies = f" ({self.dropped_copies} copies of the picture shown)" if self.dropped_copies else ""
+        lines = [f"{self.frames_out} frames out, {self.frames_in} in, {self.dropped} dropped{copies} in "
                  f"{self.seconds:.2f} s: {self.fps:.2f} fps end to end"]
         if self.geometry_frames:
             lines.append(f"  {self.geometry_frames} frames shown with geometry only to keep up "

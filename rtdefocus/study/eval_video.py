@@ -17,7 +17,10 @@ frame after frame, in order, in several *modes*:
                (its ``catch_up``); a dropped frame's time shows the last frame shown, scored
                against the frame that should be there;
 ``geowindow-N`` the same window with compensation off (the player's geometry mode): what the
-               audience would see instead, drops included (0 dB where it keeps up).
+               audience would see instead, drops included (0 dB where it keeps up);
+``window-N-sK`` the window on a device K times slower (``slowdown``: :class:`SlowedCompensator`
+               makes every compensated frame cost K times what it costs here; geometry only
+               costs the same, so ``geowindow-N`` is its comparison too).
 
 Every frame's camera view (``procam.capture(frame)``) is scored against the sharp capture of
 the same warp (``procam.capture(comp.warp(image), sharp=True)``) inside the display rectangle,
@@ -54,8 +57,8 @@ from .scores import camera_view, psnr, rect_mask
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SEGMENTS", "QUICK_SEGMENTS", "OFFLINE_ITERATIONS", "Segment", "make_clip",
-           "run_video_eval", "segment_summary"]
+__all__ = ["SEGMENTS", "QUICK_SEGMENTS", "OFFLINE_ITERATIONS", "Segment", "SlowedCompensator",
+           "make_clip", "run_video_eval", "segment_summary"]
 
 #: Cold iterations per frame of the "offline" mode: the default budget of file rendering.
 OFFLINE_ITERATIONS = 40
@@ -180,9 +183,46 @@ class _Memo:
         return self.store[k]
 
 
-def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = False):
+class SlowedCompensator:
+    """A Compensator on a device ``factor`` times slower than this one, for measuring the live
+    player at other device speeds: every :meth:`compensate` sleeps ``factor - 1`` times its own
+    time after the real work, and reports its stage times scaled by ``factor`` in
+    ``last_info``, as a slower device would; :meth:`warm_up` reports its scaled times. The
+    geometry-only :meth:`warp` (the GL pass, not the compensation device) keeps its cost.
+    Anything else is the wrapped Compensator's."""
+
+    def __init__(self, comp, factor: float):
+        if not factor >= 1.0:
+            raise InputError(f"a slowdown is a factor >= 1 (1: this machine); got {factor}")
+        self.comp, self.factor = comp, float(factor)
+        self.last_info: dict = {}
+
+    def __getattr__(self, name):
+        return getattr(self.comp, name)
+
+    def _scaled(self, info: dict | None) -> dict | None:
+        if not info:
+            return info
+        info = dict(info)
+        info["seconds"] = {k: v * self.factor for k, v in (info.get("seconds") or {}).items()}
+        return info
+
+    def compensate(self, image, **kw):
+        t0 = time.perf_counter()
+        out = self.comp.compensate(image, **kw)
+        time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
+        self.last_info = self._scaled(self.comp.last_info)
+        return out
+
+    def warm_up(self, iterations: int = 1):
+        return self._scaled(self.comp.warm_up(iterations=iterations))
+
+
+def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = False,
+                slowdown: float = 1.0):
     """The clip played live at ``fps`` through the real player into a realtime sink
-    (``geometry_only``: in the player's geometry mode, compensation off).
+    (``geometry_only``: in the player's geometry mode, compensation off; ``slowdown``: on a
+    device that many times slower, :class:`SlowedCompensator`).
 
     Returns
     -------
@@ -195,6 +235,8 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
     from ..stream.sinks import Sink
 
     comp = Compensator(calib, backend=backend)     # (the live player warms it up itself)
+    if slowdown != 1.0:
+        comp = SlowedCompensator(comp, slowdown)
 
     class WindowSink(Sink):
         kind, realtime = "window (recorded)", True
@@ -203,11 +245,13 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
             self.shown: dict[int, tuple[np.ndarray, int]] = {}
             self.player = None
             self._geometry = 0
+            self.start_only = 0     # compensated frames shown from their start (0 iterations)
 
         def write(self, frame: np.ndarray, index: int) -> None:
             g = self.player.stats.geometry_frames
-            its = (0 if g > self._geometry or self.player.controls.mode != "full"
-                   else int(comp.last_info.get("iterations", 0)))
+            solved = g == self._geometry and self.player.controls.mode == "full"
+            its = int(comp.last_info.get("iterations", 0)) if solved else 0
+            self.start_only += solved and its == 0
             self._geometry = g
             self.shown[index] = (frame.copy(), its)
 
@@ -217,13 +261,16 @@ def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = Fal
     if geometry_only:
         player.controls.mode = "geometry"
     stats = player.run()
+    stats.start_only = sink.start_only
     return sink.shown, stats
 
 
-def mode_names(budgets, fps_list, offline: int) -> list[str]:
+def mode_names(budgets, fps_list, offline: int, slowdown=(1.0,)) -> list[str]:
     names = [f"warm-{k}" for k in budgets] + [f"cold-{k}" for k in budgets]
     names += [f"fps-{f:g}" for f in fps_list]
-    names += [f"{w}-{f:g}" for f in fps_list for w in ("window", "geowindow")]
+    for f in fps_list:
+        names += [f"window-{f:g}" if k == 1 else f"window-{f:g}-s{k:g}" for k in slowdown]
+        names.append(f"geowindow-{f:g}")
     if offline:
         names.append("offline")
     return names
@@ -233,7 +280,8 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
                    projector_size: tuple[int, int] | None = None,
                    camera_size: tuple[int, int] | None = None,
                    clip_size: tuple[int, int] | None = None, segments=None,
-                   budgets=(1, 2, 4, 8), fps=(24, 30, 60), offline: int = OFFLINE_ITERATIONS,
+                   budgets=(1, 2, 4, 8), fps=(24, 30, 60), slowdown=(1.0,),
+                   offline: int = OFFLINE_ITERATIONS,
                    preset: str = "cubicle", calibration: str | Path | None = None,
                    backend: str = "auto", seed: int = 0, plot: bool = True,
                    step=None) -> dict:
@@ -248,6 +296,8 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
     segments : sequence of :class:`Segment` (default :data:`SEGMENTS`).
     budgets : fixed iterations per frame (each run warm and cold).
     fps : wall-clock budgets (frames per second on this machine).
+    slowdown : device speeds of the window rows: each factor k >= 1 plays the window on a
+        device k times slower than this machine (:class:`SlowedCompensator`).
     offline : cold iterations per frame of the ceiling (0: leave it out; shares need it).
     preset : simulator preset.
     calibration : a calibration file (``rtdefocus calibrate``) for the same preset and sizes;
@@ -281,9 +331,12 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
     segments = tuple(segments or SEGMENTS)
     budgets = tuple(int(b) for b in budgets)
     fps = tuple(float(f) for f in fps)
+    slowdown = tuple(float(k) for k in slowdown)
     if any(b < 1 for b in budgets) or any(f <= 0 for f in fps) or offline < 0:
         raise InputError(f"budgets must be >= 1, fps > 0 and offline >= 0; got {budgets}, {fps}, "
                          f"{offline}")
+    if not slowdown or any(not k >= 1 for k in slowdown):
+        raise InputError(f"slowdown factors must be >= 1 (1: this machine); got {slowdown}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -303,7 +356,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
         f"projector {projector_size[0]}x{projector_size[1]}, {preset}, {kernels}")
     clip = make_clip(clip_size, segments)
 
-    modes = mode_names(budgets, fps, offline)
+    modes = mode_names(budgets, fps, offline, slowdown)
     comps = {m: Compensator(calib, backend=backend) for m in modes
              if m.startswith(("warm-", "fps-"))}
     cold = Compensator(calib, backend=backend)
@@ -330,14 +383,20 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
 
     # The window first, on an idle machine: the other modes' work would be its load otherwise.
     windows, window_stats = {}, {}
-    for f in fps:
-        for kind in ("window", "geowindow"):
-            say(f"  the player at {f:g} fps, live (the window's view"
-                + (", geometry only)" if kind == "geowindow" else ")"))
-            m = f"{kind}-{f:g}"
-            windows[m], st = play_window(calib, backend, clip, f, geometry_only=kind == "geowindow")
-            window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
-                               "geometry_only": st.geometry_frames, "fps": st.fps}
+    for m in modes:
+        if not m.startswith(("window-", "geowindow-")):
+            continue
+        _, f, *k = m.split("-")
+        k = float(k[0][1:]) if k else 1.0
+        say(f"  the player at {f} fps, live (the window's view"
+            + (", geometry only)" if m.startswith("geo") else
+               f", a device {k:g}x slower)" if k != 1 else ")"))
+        windows[m], st = play_window(calib, backend, clip, float(f),
+                                     geometry_only=m.startswith("geo"), slowdown=k)
+        window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
+                           "dropped_copies": st.dropped_copies,
+                           "geometry_only": st.geometry_frames, "start_only": st.start_only,
+                           "fps": st.fps}
     on_screen = dict.fromkeys(windows)        # what each window shows at the current frame
 
     records = []
@@ -383,7 +442,8 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
     result = {
         "settings": {"projector_size": projector_size, "camera_size": camera_size,
                      "clip_size": clip_size, "preset": preset, "kernels": kernels,
-                     "budgets": budgets, "fps": fps, "offline_iterations": offline,
+                     "budgets": budgets, "fps": fps, "slowdown": slowdown,
+                     "offline_iterations": offline,
                      "backend": cold.backend, "solver": cold.solver_name, "seed": seed,
                      "segments": [s.__dict__ for s in segments], "clip_fps": CLIP_FPS},
         "machine": machine_info(),

@@ -22,7 +22,9 @@ def mode_label(mode: str) -> str:
     if kind == "fps":
         return f"{n} fps wall-clock budget (warm)"
     if kind == "window":
-        return f"the window at {n} fps (the player, live)"
+        n, _, k = n.partition("-s")
+        return (f"the window at {n} fps (the player, live)" if not k else
+                f"the window at {n} fps, a device {k}x slower")
     if kind == "geowindow":
         return f"the window at {n} fps, geometry only"
     return MODE_LABELS.get(mode, mode)
@@ -82,10 +84,14 @@ def video_markdown(result: dict) -> str:
         lines.append(f"| {mode_label(mode)} | " + " | ".join(cells) + f" | {still} | {cut} | "
                      f"{_f(r['iterations_median'], 'g')} | {_f(r['ms_median'], '.0f')} |")
     for mode, w in (result.get("window") or {}).items():
-        caught = (f" ({w['geometry_only']} with geometry only to keep up)"
+        start = (f", {w['start_only']} from the previous correction carried along the motion"
+                 if w.get("start_only") else "")
+        caught = (f" ({w['geometry_only']} with geometry only to keep up{start})"
                   if mode.startswith("window") else "")
+        copies = w.get("dropped_copies", 0)
+        copies = f" ({copies} of them copies of the picture on the screen)" if copies else ""
         lines += ["", f"{mode_label(mode)}: {w['shown']} frames shown{caught}, {w['dropped']} "
-                  f"dropped, {w['fps']:.1f} fps end to end."]
+                  f"dropped{copies}, {w['fps']:.1f} fps end to end."]
     lines += ["", f"Run time {result['seconds']:.0f} s.", ""]
     return "\n".join(lines)
 
