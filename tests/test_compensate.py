@@ -259,6 +259,23 @@ def test_warm_start_reuses_the_previous_frame(cubicle, images):
     assert not comp.last_info["warm_start"]
 
 
+
+@pytest.mark.parametrize("backend", ["opencl", "numpy"])
+def test_compensator_spends_its_whole_budget(images, backend):
+    """The solve runs the iterations it is given, the constructor's default (40, the budget
+    the quality figures are measured at) or a frame's own, and each lowers the distance."""
+    procam = sim.VirtualProCam("cubicle", projector_size=(160, 120), camera_size=(240, 180), seed=3)
+    comp = Compensator(oracle_calibration(procam), backend=backend)
+    assert comp.backend == backend
+    for iterations in (None, 7):
+        comp.reset()
+        comp.compensate(images["chelsea"], iterations=iterations)
+        info = comp.last_info
+        n = 40 if iterations is None else iterations
+        assert comp.iterations == 40 and info["iterations"] == n, (comp.iterations, info["iterations"])
+        d = np.asarray(info["distances"])
+        assert len(d) == n + 1 and d[-1] < d[n // 2] < d[0], d
+
 def test_numpy_and_opencl_backends_agree(cubicle, images, cl_runtime):
     _, calib = cubicle
     warped = Compensator(calib, method="none").warp(images["astronaut"])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from helpers import skip_or_fail
 
 import rtdefocus as rd
 from rtdefocus.compensate.motion import MotionEstimator
@@ -359,7 +360,7 @@ def test_the_motion_thread_of_a_gpu_device_gives_the_inline_result(calib, pictur
     """On a GPU device the motion estimate runs on a helper thread beside the cold start's blur;
     on a CPU device in turn with it. Both orders give the same frames, bit for bit."""
     if not rd.Compensator(calib).backend == "opencl":
-        pytest.skip("needs an OpenCL device")
+        skip_or_fail("needs an OpenCL device")
     a, _ = pictures
     frames = [_crop(a, 60 + 5 * i, 80 + 2 * i) for i in range(4)]
     outs = {}

@@ -24,6 +24,10 @@ from rtdefocus.calib.psf import (
 from rtdefocus.errors import InputError
 
 DEFAULT, PAPER, BLIND = ("default", False), ("paper", False), ("default", True)
+# Largest step of the blended kernel between neighbouring pixels (L1), 1.5x the measured
+# (`tools/measure_gains.py --sections field`: default 0.075, paper <= 0.02; the same fields
+# snapped to their nearest sample step by 0.59 and 1.73).
+FIELD_JUMP = {"default": 0.112, "paper": 0.03}
 
 
 def _errors(preset, key):
@@ -276,3 +280,38 @@ def test_diagnostics_picture_and_radius_map():
     assert np.median(err) < 0.3, f"median radius error {np.median(err):.3f} px"
     with pytest.raises(InputError):
         psf_diagnostics(cal, truth.radius_map[:10])
+
+
+def _field_jump(cal) -> float:
+    """Largest L1 change of the blended kernel ``sum_i w_i psf_i`` between two neighbouring
+    projector pixels of the same plane. A seam (one sample swapped for another) steps by the
+    difference between two measured kernels; a continuous blend by a small fraction of it.
+    The kernels have unit sum, so a pair's step is at most the L1 change of its weights: only
+    pairs whose weights change by more than 0.02 need their kernels built."""
+    hp, wp = cal.pix_idx.shape[:2]
+    n = len(cal.psfs)
+    dense = np.zeros((hp * wp, n), np.float32)
+    rows = np.repeat(np.arange(hp * wp), 4)
+    np.add.at(dense, (rows, cal.pix_idx.reshape(-1)), cal.pix_wts.reshape(-1))
+    dense = dense.reshape(hp, wp, n)
+    plane = cal.plane_map()
+    psfs = cal.psfs.reshape(n, -1).astype(np.float64)
+    jump = 0.02
+    for axis in (0, 1):
+        a = dense[:-1] if axis == 0 else dense[:, :-1]
+        b = dense[1:] if axis == 0 else dense[:, 1:]
+        same = plane[:-1] == plane[1:] if axis == 0 else plane[:, :-1] == plane[:, 1:]
+        step = np.abs(b - a).sum(axis=2)
+        big = same & (step > jump)
+        if big.any():
+            dk = (b[big] - a[big]).astype(np.float64) @ psfs
+            jump = max(jump, float(np.abs(dk).sum(axis=1).max()))
+    return jump
+
+
+@pytest.mark.parametrize("key", [DEFAULT, PAPER], ids=["default", "paper"])
+def test_kernel_field_has_no_seams(key):
+    """Within a plane the kernel field is continuous: one pixel's step changes the blended
+    kernel by a little, never swaps one measured kernel for another (no seams)."""
+    jump = _field_jump(calibrated("tilted").variants[key])
+    assert jump <= FIELD_JUMP[key[0]], f"largest step of the blend between neighbours {jump:.3f}"

@@ -168,3 +168,25 @@ def test_bad_options_raise():
         calibrate_radiometry(procam, None, capture=Capturer(procam), response_model="spline")
     with pytest.raises(InputError, match="ramp_levels"):
         calibrate_radiometry(procam, None, capture=Capturer(procam), ramp_levels=[300])
+
+
+def test_albedo_through_a_barrel_lens_on_a_woven_wall():
+    """The webcam preset (sRGB camera, barrel lens k1 = -0.05, room light, noise) on the
+    "fabric" walls (a 3 cm weave, a striped poster): the stage reads its frames through the
+    calibration's lens. Bounds are 1.5x the measured (`tools/measure_gains.py --sections
+    radiometry`: albedo median 0.0079, 99th percentile 0.039; gamma 2.228 for 2.2); the same
+    stage reading the frames as if the lens were ideal measured 0.017 / 0.11."""
+    from rtdefocus import sim
+
+    pc = sim.VirtualProCam("webcam", texture="fabric", projector_size=(320, 240),
+                           camera_size=(480, 360))
+    calib = truth_geometry(pc)
+    assert calib.camera_distortion[0] == -0.05
+    out = calibrate_radiometry(Blind(pc), calib, capture=Capturer(Blind(pc)))
+    truth = pc.truth
+    m = _interior(truth, int(np.ceil(truth.radius_map.max())) + 2)
+    rel = (np.abs(out.albedo_proj - truth.albedo_proj) / truth.albedo_proj)[m]
+    assert np.median(rel) <= 0.0119 and np.percentile(rel, 99) <= 0.059, \
+        f"albedo: median {np.median(rel):.4f}, 99th percentile {np.percentile(rel, 99):.4f}"
+    gamma = np.asarray(out.meta["radiometry"]["gamma"])
+    assert np.abs(gamma / truth.projector_gamma - 1).max() <= 0.0195, gamma

@@ -246,8 +246,7 @@ def test_flatten_photograph_closer_to_a_white_wall(fabric):
     """Done-when: ≥ 3 dB closer (PSNR after a global gain and offset) to the input on a
     uniform white wall (measured +9.7 dB on chelsea at 240×180)."""
     import cv2
-
-    data = pytest.importorskip("skimage.data")
+    from skimage import data
     cam, calib = fabric
     img = data.chelsea()
     x, y, w, h = calib.display_rect(img.shape[1::-1])

@@ -172,15 +172,18 @@ def test_too_few_measured_dots_on_a_plane_is_reported():
 # --------------------------------------------------------------------------- end to end
 @functools.cache
 def _webcam_calibration():
-    """The webcam preset, lens distortion on (k1 = -0.05), at a small size."""
-    pc = sim.VirtualProCam("webcam", projector_size=(320, 240), camera_size=(512, 384))
+    """The webcam preset, lens distortion on (k1 = -0.05), at a small size, with a triangular
+    aperture: not point-symmetric, so a kernel flipped, transposed or shifted anywhere between
+    the dots and the solver changes the figures."""
+    pc = sim.VirtualProCam("webcam", projector_size=(320, 240), camera_size=(512, 384),
+                           aperture="triangle")
     return pc, rd.calibrate(pc)
 
 
 def test_calibration_on_a_webcam_in_a_lit_room():
-    """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
-    aperture, barrel lens: calibration passes and meets issue 11's done-when figures, each
-    measured against the ground truth (tests/setup_figures.py)."""
+    """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, a triangular
+    chromatic aperture, barrel lens: calibration passes and stays within 1.5x of its measured
+    figures, each measured against the ground truth (tests/setup_figures.py)."""
     from setup_figures import figures
 
     from rtdefocus.samples import photographs
@@ -189,15 +192,18 @@ def test_calibration_on_a_webcam_in_a_lit_room():
     assert calib.meta["radiometry"]["camera_response"] == "auto"
     photos = photographs()
     f = figures(pc, calib, {k: photos[k] for k in ("chelsea", "coffee")})
-    # measured (tools/webcam_table.py webcam --size 320x240): k1 -0.0499, camera 0.007,
-    # gamma 2.221, fold 0.11 px, checkerboard 0.09 px, kernels 0.073 / 0.071, gain 103 %
-    assert abs(f["k1"] - f["k1_true"]) < 0.005, f
-    assert f["camera_err"] < 0.03, f
-    assert abs(f["gamma"] / f["gamma_true"] - 1) < 0.03, f
-    assert f["fold_px"] < 1.0, f
-    assert f["checker_rms"] <= 0.5 and f["checker_bend"] < 0.5, f
-    assert f["kernel_inside"] <= 0.20 and f["kernel_fold"] <= 0.30, f
-    assert f["gain_oracle_db"] > 0.5 and f["gain_share"] >= 0.6, f
+    # Each bound is 1.5x the measured error or 85 % of the measured gain (deterministic run;
+    # `tools/measure_gains.py --sections webcam`): k1 -0.0499 for -0.05, camera response
+    # 0.0083, gamma 2.226 for 2.2 (1.2 %), fold 0.030 px, checkerboard 0.101 / bend 0.100 px,
+    # kernels 0.095 inside / 0.067 near the fold, gain 0.873 dB with the true kernels, the
+    # calibrated ones 88.9 % of it.
+    assert abs(f["k1"] - f["k1_true"]) <= 0.00015, f
+    assert f["camera_err"] <= 0.0125, f
+    assert abs(f["gamma"] / f["gamma_true"] - 1) <= 0.0177, f
+    assert f["fold_px"] <= 0.046, f
+    assert f["checker_rms"] <= 0.151 and f["checker_bend"] <= 0.150, f
+    assert f["kernel_inside"] <= 0.143 and f["kernel_fold"] <= 0.100, f
+    assert f["gain_oracle_db"] >= 0.742 and f["gain_share"] >= 0.755, f
 
 
 def _radiometry(**kw):

@@ -9,6 +9,10 @@ Sections (``--sections``, comma-separated):
                 only over the display rect and in the 16-px band either side of the fold.
 ``eval``        ``rtdefocus eval --quick`` (as tests/test_eval.py runs it): gains per row.
 ``demo``        the demo at 400x300 (as tests/test_demo.py runs it): the chelsea row.
+``webcam``      tests/test_webcam.py's calibration on the webcam preset with a triangle
+                aperture: lens, camera response, gamma, fold, checkerboard, kernels, gain.
+``radiometry``  tests/test_radiometry.py: albedo and gamma through a barrel lens, fabric walls.
+``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
 
 Example::
 
@@ -45,6 +49,23 @@ def section_compensate() -> None:
                 ds = tc.ssim(v["ycbcr"], v["sharp"], m) - tc.ssim(v["none"], v["sharp"], m)
                 row.append(f"{region}: {dp:+.2f} dB  SSIM {ds:+.4f}")
             print(f"compensate {preset:8s} {name:10s} " + "   ".join(row), flush=True)
+        # test_calibrated_gain_is_most_of_the_oracle_gain and test_ycbcr_beats_rgb_in_luma
+        procam, calib, _ = tc.setup_for(preset)
+        oracle = tc.Compensator(tc.oracle_calibration(procam), method="ycbcr")
+        cal, orc, lead = [], [], []
+        for name in tc.PHOTOS:
+            v = tc.camera_views(preset, name, images[name])
+            p0 = tc.psnr(v["none"], v["sharp"], v["mask"])
+            cal.append(tc.psnr(v["ycbcr"], v["sharp"], v["mask"]) - p0)
+            oracle.reset()
+            orc.append(tc.psnr(procam.capture(oracle.compensate(images[name])), v["sharp"],
+                               v["mask"]) - p0)
+            y = {k: tc.psnr(tc.luma(v[k]), tc.luma(v["sharp"]), v["mask"], data_range=255.0)
+                 for k in ("ycbcr", "rgb")}
+            lead.append(y["ycbcr"] - y["rgb"])
+        print(f"compensate {preset:8s} oracle gain {np.mean(orc):.3f} dB  calibrated "
+              f"{np.mean(cal):.3f} dB  share {np.mean(cal) / np.mean(orc):.4f}  luma lead of "
+              f"ycbcr over rgb {np.mean(lead):.4f} dB (per photo {np.round(lead, 3)})", flush=True)
 
 
 def section_eval() -> None:
@@ -75,7 +96,59 @@ def section_demo() -> None:
               f"{r['edges_output']}")
 
 
-SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo}
+def section_webcam() -> None:
+    """tests/test_webcam.py's end-to-end calibration (webcam preset, triangle aperture)."""
+    import test_webcam as tw
+    from setup_figures import figures
+
+    from rtdefocus.samples import photographs
+
+    pc, calib = tw._webcam_calibration()
+    photos = photographs()
+    f = figures(pc, calib, {k: photos[k] for k in ("chelsea", "coffee")})
+    print("webcam " + "  ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
+                                for k, v in f.items()), flush=True)
+
+
+def section_radiometry() -> None:
+    """tests/test_radiometry.py's lens test: the radiometry stage on the webcam preset with the
+    fabric walls, reading its frames through the lens (and, for contrast, as if it were ideal)."""
+    from calib_presets import truth_geometry
+    from helpers import Blind
+
+    from rtdefocus import sim
+    from rtdefocus.calib.capture import Capturer
+    from rtdefocus.calib.radiometry import calibrate_radiometry
+
+    for lens in (True, False):
+        pc = sim.VirtualProCam("webcam", texture="fabric", projector_size=(320, 240),
+                               camera_size=(480, 360))
+        calib = truth_geometry(pc)
+        if not lens:
+            calib.camera_distortion = np.zeros(2)
+        out = calibrate_radiometry(Blind(pc), calib, capture=Capturer(Blind(pc)))
+        t = pc.truth
+        r = int(np.ceil(t.radius_map.max())) + 2
+        m = np.zeros(t.radius_map.shape, bool)
+        m[r:-r, r:-r] = True
+        rel = (np.abs(out.albedo_proj - t.albedo_proj) / t.albedo_proj)[m]
+        print(f"radiometry {'lens' if lens else 'no lens':8s} albedo median {np.median(rel):.4f}"
+              f"  p99 {np.percentile(rel, 99):.4f}  gamma {np.round(out.meta['radiometry']['gamma'], 4)}",
+              flush=True)
+
+
+def section_field() -> None:
+    """tests/test_psf.py's kernel-field continuity: the largest blend step between neighbours."""
+    import test_psf as tp
+    from calib_presets import calibrated
+
+    for key in (tp.DEFAULT, tp.PAPER):
+        print(f"field {key[0]:8s} largest step {tp._field_jump(calibrated('tilted').variants[key]):.4f}",
+              flush=True)
+
+
+SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
+            "webcam": section_webcam, "field": section_field, "radiometry": section_radiometry}
 
 
 def main(argv=None) -> int:
