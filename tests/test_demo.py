@@ -22,6 +22,7 @@ def demo_result(tmp_path_factory):
                          rooms=("corner_ceiling",))
 
 
+@pytest.mark.slow
 def test_demo_writes_pictures_and_tables(demo_result):
     out, result = demo_result
     names = {p.name for p in out.iterdir()}

@@ -33,6 +33,7 @@ def quick_eval(tmp_path_factory):
     return out, json.loads((out / "eval.json").read_text())
 
 
+@pytest.mark.slow
 def test_eval_writes_tables_json_and_plot(quick_eval):
     from rtdefocus.imageio import read_image
 

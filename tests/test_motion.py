@@ -112,6 +112,7 @@ def test_carry_moves_a_field_with_the_picture(pictures):
 
 
 # --------------------------------------------------------------------------- the guarantee
+@pytest.mark.slow
 @pytest.mark.parametrize("iterations", [1, 2, 4])
 def test_warm_start_is_never_farther_than_the_cold_start(calib, pictures, iterations):
     """On every frame of a moving clip (pans, zoom, cut, fade) the solver's own distance with the
@@ -124,6 +125,7 @@ def test_warm_start_is_never_farther_than_the_cold_start(calib, pictures, iterat
     assert not worse, f"frames where the warm start ended farther than the cold one: {worse}"
 
 
+@pytest.mark.slow
 def test_warm_start_follows_the_motion(calib, pictures):
     """At 2 iterations per frame the warm start gets much closer than the cold one on moving
     content (measured here, mean warm/cold distance after each segment's first frame: pan 0.70,

@@ -38,6 +38,7 @@ def _errors(preset, key):
 
 
 # ----------------------------------------------------------------------------- accuracy
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_kernel_accuracy(preset):
     """Relative L2 error of kernel_at against the true kernel (rd.calibrate, noise on)."""
@@ -66,6 +67,7 @@ def test_fold_claim(preset):
     assert en[BLIND] >= 1.4 * en[DEFAULT], msg
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_capture_budget(preset):
     counts = calibrated(preset).calib.meta["captures"]
@@ -77,6 +79,7 @@ def test_capture_budget(preset):
 
 
 # ----------------------------------------------------------------------------- the field
+@pytest.mark.slow
 @pytest.mark.parametrize("key", [DEFAULT, PAPER, BLIND], ids=["default", "paper", "cross_fold"])
 def test_field_blends_within_planes(key):
     """Weights sum to 1 over <= 4 PSFs; per-plane layouts never blend across the fold, the
@@ -98,6 +101,7 @@ def test_field_blends_within_planes(key):
         assert not mixed.any(), f"{mixed.sum()} pixels blend a PSF of the other plane"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_kernel_at_is_a_centred_unit_sum_kernel(preset):
     cal = calibrated(preset).calib
@@ -112,6 +116,7 @@ def test_kernel_at_is_a_centred_unit_sum_kernel(preset):
         assert np.hypot(cx, cy) < 0.3, f"kernel at ({x}, {y}) off-centre by ({cx:.2f}, {cy:.2f})"
 
 
+@pytest.mark.slow
 def test_save_load_roundtrip(tmp_path):
     cal = calibrated("cubicle").variants[PAPER]     # includes the shared fold samples (-1)
     path = cal.save(tmp_path / "paper.npz")
@@ -124,6 +129,7 @@ def test_save_load_roundtrip(tmp_path):
 
 
 # ----------------------------------------------------------------------------- layouts
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_fold_samples_on_each_side_beyond_the_blur(preset):
     """Default layout: samples near the fold lie on both sides, each farther from the fold
@@ -146,6 +152,7 @@ def test_fold_samples_on_each_side_beyond_the_blur(preset):
         assert gaps.max() <= 160, f"plane {p}: a {gaps.max():.0f} px stretch of fold unsampled"
 
 
+@pytest.mark.slow
 def test_paper_layout_is_four_corners_per_plane_and_two_fold_points():
     res = calibrated("tilted")
     cal = res.variants[PAPER]
@@ -164,6 +171,7 @@ def _affine_model(coef0, coef1):
     return m
 
 
+@pytest.mark.slow
 def test_default_layout_adapts_to_the_blur_gradient():
     """Every pixel blends PSFs whose (modelled) radii differ by <= radius_step, a steeper blur
     gradient gets more samples, and one pattern holds them all."""
@@ -189,6 +197,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
     assert counts[1] > 1.5 * counts[0], counts
 
 
+@pytest.mark.slow
 def test_dense_layout_is_a_grid_per_plane():
     cal = calibrated("cubicle").calib
     model = _affine_model([0.0, 0.0, 3.0], [0.0, 0.0, 3.0])
@@ -205,6 +214,7 @@ def test_dense_layout_is_a_grid_per_plane():
     assert np.array_equal(side, plan.planes[plan.kinds == "grid"])
 
 
+@pytest.mark.slow
 def test_unknown_layout_raises():
     res = calibrated("cubicle")
     with pytest.raises(InputError, match="layout"):
@@ -264,6 +274,7 @@ def test_measured_psf_is_the_dot_image_shifted_not_flipped(dot_size):
 
 
 # ----------------------------------------------------------------------------- diagnostics
+@pytest.mark.slow
 def test_diagnostics_picture_and_radius_map():
     res = calibrated("pillar")
     cal, truth = res.calib, res.procam.truth
@@ -309,6 +320,7 @@ def _field_jump(cal) -> float:
     return jump
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", [DEFAULT, PAPER], ids=["default", "paper"])
 def test_kernel_field_has_no_seams(key):
     """Within a plane the kernel field is continuous: one pixel's step changes the blended

@@ -214,6 +214,7 @@ def _inset(calib, size, frac=0.05):
     return rect_mask((x + dx, y + dy, w - 2 * dx, h - 2 * dy), (hc, wc))
 
 
+@pytest.mark.slow
 def test_keep_is_the_default_and_unchanged(fabric):
     _, calib = fabric
     img = np.random.default_rng(0).integers(0, 256, (45, 60, 3)).astype(np.uint8)
@@ -227,6 +228,7 @@ def test_keep_is_the_default_and_unchanged(fabric):
         rd.Compensator(calib, backend="numpy", surface="flatten", brightness=-1)
 
 
+@pytest.mark.slow
 def test_flatten_makes_a_grey_field_uniform(fabric):
     """Done-when of issue 12: CoV of a flat grey field ≥ 4× lower with flatten (measured 5.6×)."""
     cam, calib = fabric
@@ -242,6 +244,7 @@ def test_flatten_makes_a_grey_field_uniform(fabric):
     assert cov["keep"] >= 4 * cov["flatten"], cov
 
 
+@pytest.mark.slow
 def test_flatten_photograph_closer_to_a_white_wall(fabric):
     """Done-when: ≥ 3 dB closer (PSNR after a global gain and offset) to the input on a
     uniform white wall (measured +9.7 dB on chelsea at 240×180)."""
@@ -260,6 +263,7 @@ def test_flatten_photograph_closer_to_a_white_wall(fabric):
     assert p["flatten"] >= p["keep"] + 3.0, p
 
 
+@pytest.mark.slow
 def test_brightness_trades_clipping(fabric):
     _, calib = fabric
     white = np.full((45, 60, 3), 255, np.uint8)
@@ -296,6 +300,7 @@ def _coffee_figures(fabric, kind: str) -> dict:
     return _FIGURES[kind]
 
 
+@pytest.mark.slow
 def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     """Done-when: the defocus gain near the fold with flatten ≥ 60 % of the true-kernel one
     (keep, oracle calibration), on coffee, the photograph that fell short (0.59) before the
@@ -308,6 +313,7 @@ def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     assert gain["coffee/flatten"] >= 0.60 * gain["coffee/keep"], gain
 
 
+@pytest.mark.slow
 def test_flatten_target_is_reachable_and_clipping_reported(fabric):
     """The solve's target is clamped to [0, 1]; what the clamp gives up is reported, and a black
     input is reachable on nearly all of the wall (the black level e is the room light's)."""

@@ -7,11 +7,16 @@ Sections (``--sections``, comma-separated):
 ``compensate``  tests/test_compensate.py: presets cubicle/tilted/pillar at 400x300 (camera
                 640x480, seed 3), the four photographs; PSNR/SSIM gain of ``ycbcr`` over geometry
                 only over the display rect and in the 16-px band either side of the fold.
+``reference``   tests/test_compensate.py: the production solve against the independent reference.
 ``eval``        ``rtdefocus eval --quick`` (as tests/test_eval.py runs it): gains per row.
 ``demo``        the demo at 400x300 (as tests/test_demo.py runs it): the chelsea row.
 ``webcam``      tests/test_webcam.py's calibration on the webcam preset with a triangle
                 aperture: lens, camera response, gamma, fold, checkerboard, kernels, gain.
 ``radiometry``  tests/test_radiometry.py: albedo and gamma through a barrel lens, fabric walls.
+``geometry``    tests/test_geometry.py: fold, held-out points and checkerboard per preset.
+``video``       tests/test_eval_video.py: the quick moving clip, fixed budgets and the ceiling.
+``psf``         tests/test_psf.py: median kernel errors per preset and layout.
+``rooms``       tests/test_rooms_e2e.py: the three-plane rooms' figures.
 ``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
 
 Example::
@@ -50,22 +55,25 @@ def section_compensate() -> None:
                 row.append(f"{region}: {dp:+.2f} dB  SSIM {ds:+.4f}")
             print(f"compensate {preset:8s} {name:10s} " + "   ".join(row), flush=True)
         # test_calibrated_gain_is_most_of_the_oracle_gain and test_ycbcr_beats_rgb_in_luma
-        procam, calib, _ = tc.setup_for(preset)
-        oracle = tc.Compensator(tc.oracle_calibration(procam), method="ycbcr")
-        cal, orc, lead = [], [], []
+        cal, orc = tc.oracle_gains(preset, images)
+        lead = []
         for name in tc.PHOTOS:
             v = tc.camera_views(preset, name, images[name])
-            p0 = tc.psnr(v["none"], v["sharp"], v["mask"])
-            cal.append(tc.psnr(v["ycbcr"], v["sharp"], v["mask"]) - p0)
-            oracle.reset()
-            orc.append(tc.psnr(procam.capture(oracle.compensate(images[name])), v["sharp"],
-                               v["mask"]) - p0)
             y = {k: tc.psnr(tc.luma(v[k]), tc.luma(v["sharp"]), v["mask"], data_range=255.0)
                  for k in ("ycbcr", "rgb")}
             lead.append(y["ycbcr"] - y["rgb"])
         print(f"compensate {preset:8s} oracle gain {np.mean(orc):.3f} dB  calibrated "
               f"{np.mean(cal):.3f} dB  share {np.mean(cal) / np.mean(orc):.4f}  luma lead of "
               f"ycbcr over rgb {np.mean(lead):.4f} dB (per photo {np.round(lead, 3)})", flush=True)
+
+
+def section_reference() -> None:
+    """tests/test_compensate.py's independent reference solve against the production one."""
+    import test_compensate as tc
+
+    g_ref, g_prod = tc.reference_gains(tc.photographs())
+    print(f"reference {g_ref:.3f} dB  production {g_prod:.3f} dB  share {g_prod / g_ref:.4f}",
+          flush=True)
 
 
 def section_eval() -> None:
@@ -137,6 +145,59 @@ def section_radiometry() -> None:
               flush=True)
 
 
+def section_geometry() -> None:
+    """tests/test_geometry.py: each preset calibrated as its fixture does, against the truth."""
+    import test_geometry as tg
+    from helpers import Blind
+
+    import rtdefocus as rd
+    from rtdefocus import sim
+
+    for preset in tg.PRESETS:
+        pc = sim.VirtualProCam(preset)
+        calib = rd.calibrate(Blind(pc), stages=("geometry",))
+        fold, held = tg.truth_figures(pc, calib)
+        rms, bend = tg.checker_figures(pc, calib)
+        print(f"geometry {preset:10s} fold {'-' if fold is None else f'{fold:.4f}'} px  held-out "
+              f"{held:.4f} px  checkerboard {rms:.4f} px  bend {bend:.4f} px", flush=True)
+
+
+def section_video() -> None:
+    """tests/test_eval_video.py's quick run: per segment, the gain of the deterministic modes
+    (fixed budgets and the offline ceiling) and the warm start's share of the offline gain."""
+    from rtdefocus import cli
+
+    with tempfile.TemporaryDirectory() as out:
+        cli.main(["-q", "eval", "--video", "--quick", "-o", out, "--budgets", "1", "--fps", "30"])
+        summ = json.loads((Path(out) / "video.json").read_text())["summary"]
+    for mode in ("warm-1", "cold-1", "offline"):
+        print(f"video {mode:8s} gain " + json.dumps({k: round(v, 3) for k, v in summ[mode]["gain"].items()})
+              + ("" if mode == "offline" else "  share " + json.dumps(
+                  {k: round(v, 3) for k, v in summ[mode]["share"].items()})), flush=True)
+
+
+def section_psf() -> None:
+    """tests/test_psf.py: median kernel errors inside the planes and near the fold per preset
+    and layout (the calibrations of tests/calib_presets.py)."""
+    import test_psf as tp
+
+    for preset in tp.PRESETS:
+        for key in (tp.DEFAULT, tp.PAPER, tp.BLIND):
+            ei, en = tp._errors(preset, key)
+            print(f"psf {preset:8s} {key[0]}{'+cross' if key[1] else '':6s} inside "
+                  f"{np.median(ei):.4f}  near the fold {np.median(en):.4f}", flush=True)
+
+
+def section_rooms() -> None:
+    """tests/test_rooms_e2e.py: the three-plane rooms calibrated end to end, their figures."""
+    import test_rooms_e2e as tr
+
+    for preset in tr.ROOMS:
+        _, _, f, seconds = tr._room(preset)
+        print(f"rooms {preset:15s} " + "  ".join(
+            f"{k} {v:.4g}" for k, v in f.items() if isinstance(v, float)), flush=True)
+
+
 def section_field() -> None:
     """tests/test_psf.py's kernel-field continuity: the largest blend step between neighbours."""
     import test_psf as tp
@@ -148,7 +209,9 @@ def section_field() -> None:
 
 
 SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
-            "webcam": section_webcam, "field": section_field, "radiometry": section_radiometry}
+            "webcam": section_webcam, "reference": section_reference, "field": section_field,
+            "radiometry": section_radiometry, "geometry": section_geometry,
+            "video": section_video, "psf": section_psf, "rooms": section_rooms}
 
 
 def main(argv=None) -> int:
