@@ -43,9 +43,9 @@ def test_demo_compensation_beats_geometry_only_on_the_photograph(demo_result):
     _, result = demo_result
     row = next(r for r in result["rows"] if r["name"] == "chelsea")
     # Measured (`.venv/bin/python tools/measure_gains.py --sections demo`, OpenCL on PoCL,
-    # 2026-11-29): +3.75 dB PSNR, +0.0292 SSIM; asked for: 70 % of each.
-    assert row["psnr"]["ycbcr"] > row["psnr"]["none"] + 0.7 * 3.75, row["psnr"]
-    assert row["ssim"]["ycbcr"] > row["ssim"]["none"] + 0.7 * 0.0292, row["ssim"]
+    # deterministic): +4.08 dB PSNR, +0.0320 SSIM; asked for: 85 % of each.
+    assert row["psnr"]["ycbcr"] >= row["psnr"]["none"] + 0.85 * 4.08, row["psnr"]
+    assert row["ssim"]["ycbcr"] >= row["ssim"]["none"] + 0.85 * 0.0320, row["ssim"]
     # The paper's Table 1 measure: more edges survive in the camera's view.
     assert row["edges_output"]["defocus"] > row["edges_output"]["geometry"]
 
