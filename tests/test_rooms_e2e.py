@@ -47,7 +47,9 @@ MEASURED = {
     "u_cubicle": {"fold_px": 0.09296, "homography_rms": 0.02039, "checker_rms": 0.08631,
                   "checker_bend": 0.06013, "kernel_inside": 0.06984, "kernel_fold": 0.07563,
                   "gain_oracle_db": 3.495, "gain_share": 0.9926},
-    "corner_ceiling": {},
+    "corner_ceiling": {"fold_px": 0.2257, "homography_rms": 0.006951, "checker_rms": 0.09624,
+                       "checker_bend": 0.09837, "kernel_inside": 0.08998, "kernel_fold": 0.111,
+                       "gain_oracle_db": 2.063, "gain_share": 0.966},
 }
 
 
