@@ -39,6 +39,7 @@ def test_demo_writes_pictures_and_tables(demo_result):
     assert calib.has_psf and calib.n_planes == 2
 
 
+@pytest.mark.slow
 def test_demo_compensation_beats_geometry_only_on_the_photograph(demo_result):
     _, result = demo_result
     row = next(r for r in result["rows"] if r["name"] == "chelsea")
@@ -50,6 +51,7 @@ def test_demo_compensation_beats_geometry_only_on_the_photograph(demo_result):
     assert row["edges_output"]["defocus"] > row["edges_output"]["geometry"]
 
 
+@pytest.mark.slow
 def test_side_by_side_picture_has_all_panels(demo_result):
     from rtdefocus.imageio import read_image
 
@@ -77,6 +79,7 @@ def test_demo_surfaces_section(tmp_path):
     assert figures["cov"]["defocus + flatten"] < figures["cov"]["defocus only"]
 
 
+@pytest.mark.slow
 def test_demo_shows_a_room_of_three_planes(demo_result):
     """The default demo also calibrates two walls and the ceiling through capture() only."""
     import rtdefocus as rd

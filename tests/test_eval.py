@@ -54,6 +54,7 @@ def test_eval_writes_tables_json_and_plot(quick_eval):
     assert plot.shape[0] > 400 and plot.shape[1] > 600 and np.std(plot) > 10
 
 
+@pytest.mark.slow
 def test_compensation_beats_geometry_only(quick_eval):
     _, result = quick_eval
     for r in result["presets"]["cubicle"]["rows"]:
@@ -62,6 +63,7 @@ def test_compensation_beats_geometry_only(quick_eval):
         assert r["ssim"]["ycbcr/default"] > r["ssim"]["none"], (r["name"], r["ssim"])
 
 
+@pytest.mark.slow
 def test_oracle_bounds_the_calibrated_kernels_and_blind_layout_loses_at_the_fold(quick_eval):
     _, result = quick_eval
     gains = result["presets"]["cubicle"]["gains"]
@@ -73,6 +75,7 @@ def test_oracle_bounds_the_calibrated_kernels_and_blind_layout_loses_at_the_fold
         gains["ycbcr/cross_fold"]["psnr_fold"] + MARGIN * MEASURED_FOLD_OVER_CROSS, gains
 
 
+@pytest.mark.slow
 def test_wiener_baseline_keeps_its_gain_and_ours_leads_it(quick_eval):
     """The Wiener pre-filter is a working baseline (its measured gain, within MARGIN), and the
     paper's solve leads it by most of the measured difference."""
@@ -84,6 +87,7 @@ def test_wiener_baseline_keeps_its_gain_and_ours_leads_it(quick_eval):
         MARGIN * (ours - MEASURED_WIENER), gains
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["pg", "fista"])
 def test_distance_curves_decrease_and_psnr_improves(quick_eval, solver):
     _, result = quick_eval

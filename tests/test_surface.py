@@ -230,7 +230,8 @@ def test_keep_is_the_default_and_unchanged(fabric):
 
 @pytest.mark.slow
 def test_flatten_makes_a_grey_field_uniform(fabric):
-    """Done-when of issue 12: CoV of a flat grey field ≥ 4× lower with flatten (measured 5.6×)."""
+    """The CoV of a flat grey field falls with flatten by at least 85 % of the measured factor
+    (6.63: 0.2307 -> 0.0348; `tools/measure_gains.py --sections surface`)."""
     cam, calib = fabric
     grey = np.full((90, 120, 3), 128, np.uint8)
     mask = _inset(calib, (120, 90))
@@ -241,13 +242,14 @@ def test_flatten_makes_a_grey_field_uniform(fabric):
     info = comp.last_info
     assert info["surface"] == "flatten" and 0 < info["brightness"] < 1
     assert 0 <= info["clipped"] <= 0.05
-    assert cov["keep"] >= 4 * cov["flatten"], cov
+    assert cov["keep"] >= 0.85 * 6.63 * cov["flatten"], cov
 
 
 @pytest.mark.slow
 def test_flatten_photograph_closer_to_a_white_wall(fabric):
-    """Done-when: ≥ 3 dB closer (PSNR after a global gain and offset) to the input on a
-    uniform white wall (measured +9.7 dB on chelsea at 240×180)."""
+    """Closer (PSNR after a global gain and offset) to the input on a uniform white wall by at
+    least 85 % of the measured +9.22 dB (chelsea at 240×180; `tools/measure_gains.py
+    --sections surface`)."""
     import cv2
     from skimage import data
     cam, calib = fabric
@@ -260,7 +262,7 @@ def test_flatten_photograph_closer_to_a_white_wall(fabric):
     p = {s: psnr_affine(cam.capture(rd.Compensator(calib, backend="numpy", surface=s,
                                                    iterations=20).compensate(img)), white, mask)
          for s in ("keep", "flatten")}
-    assert p["flatten"] >= p["keep"] + 3.0, p
+    assert p["flatten"] >= p["keep"] + 0.85 * 9.22, p
 
 
 @pytest.mark.slow
@@ -343,6 +345,6 @@ def test_done_when_figures_with_a_calibrated_setup(fabric):
     res = _coffee_figures(fabric, "calibrated")
     oracle = _coffee_figures(fabric, "oracle")
     cov, p, gain = res["cov"], res["psnr_affine"], res["fold_gain"]
-    assert cov["keep"] >= 4 * cov["flatten"], cov
+    assert cov["keep"] >= 0.85 * 6.63 * cov["flatten"], cov
     assert p["coffee/flatten"] >= p["coffee/keep"] + 3.0, p
     assert gain["coffee/flatten"] >= 0.60 * oracle["fold_gain"]["coffee/keep"], (gain, oracle)

@@ -17,6 +17,7 @@ Sections (``--sections``, comma-separated):
 ``video``       tests/test_eval_video.py: the quick moving clip, fixed budgets and the ceiling.
 ``psf``         tests/test_psf.py: median kernel errors per preset and layout.
 ``rooms``       tests/test_rooms_e2e.py: the three-plane rooms' figures.
+``surface``     tests/test_surface.py: flatten's grey field and photograph on the fabric walls.
 ``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
 
 Example::
@@ -202,6 +203,34 @@ def section_rooms() -> None:
             f"{k} {v:.4g}" for k, v in f.items() if isinstance(v, float)), flush=True)
 
 
+def section_surface() -> None:
+    """tests/test_surface.py: flatten's grey-field CoV and its photograph against a white wall."""
+    import cv2
+    import test_surface as ts
+    from skimage import data
+
+    import rtdefocus as rd
+
+    cam = rd.sim.VirtualProCam("fabric", projector_size=(240, 180), camera_size=(320, 240))
+    calib = rd.sim.oracle_calibration(cam)
+    grey = np.full((90, 120, 3), 128, np.uint8)
+    mask = ts._inset(calib, (120, 90))
+    cov = {s: ts.coefficient_of_variation(cam.capture(rd.Compensator(
+        calib, backend="numpy", surface=s).compensate(grey)), mask) for s in ("keep", "flatten")}
+    img = data.chelsea()
+    x, y, w, h = calib.display_rect(img.shape[1::-1])
+    wc, hc = calib.camera_size
+    white = np.zeros((hc, wc, 3), np.uint8)
+    white[y:y + h, x:x + w] = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    m = ts._inset(calib, img.shape[1::-1])
+    p = {s: ts.psnr_affine(cam.capture(rd.Compensator(calib, backend="numpy", surface=s,
+                                                      iterations=20).compensate(img)), white, m)
+         for s in ("keep", "flatten")}
+    print(f"surface grey CoV keep {cov['keep']:.4f} flatten {cov['flatten']:.4f} (factor "
+          f"{cov['keep'] / cov['flatten']:.3f}); chelsea vs a white wall {p['keep']:.2f} -> "
+          f"{p['flatten']:.2f} dB ({p['flatten'] - p['keep']:+.3f})", flush=True)
+
+
 def section_field() -> None:
     """tests/test_psf.py's kernel-field continuity: the largest blend step between neighbours."""
     import test_psf as tp
@@ -215,7 +244,8 @@ def section_field() -> None:
 SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
             "webcam": section_webcam, "reference": section_reference, "field": section_field,
             "radiometry": section_radiometry, "geometry": section_geometry,
-            "video": section_video, "psf": section_psf, "rooms": section_rooms}
+            "video": section_video, "psf": section_psf, "rooms": section_rooms,
+            "surface": section_surface}
 
 
 def main(argv=None) -> int:
