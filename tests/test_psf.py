@@ -47,6 +47,7 @@ def test_kernel_accuracy(preset):
     assert np.median(en) <= 0.30, f"within {NEAR_FOLD} px of the fold: median {np.median(en):.3f}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_fold_claim(preset):
     """Near the fold the default layout beats the paper's where the fold is the blurriest

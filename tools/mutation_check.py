@@ -293,6 +293,7 @@ def main(argv=None) -> int:
         check_imports_from(tree)
         selected = list(dict.fromkeys(t for m in chosen for t in m.tests))
         rc, failed, seconds, tail = run_tests(tree, selected, args.timeout, first_failure=False)
+        baseline_s = seconds
         print(f"baseline ({len(selected)} selections): exit {rc}, {seconds:.0f} s", flush=True)
         if rc != 0:
             print(f"the unmutated tree fails its own selection ({', '.join(failed) or 'timeout'}); "
@@ -319,11 +320,19 @@ def main(argv=None) -> int:
               for m, v, s in rows]
     print("\n" + "\n".join(table))
     if args.report:
+        caught = sum(v.startswith("caught") for _, v, _ in rows)
         Path(args.report).write_text(
             "# Mutation check\n\nEach row: one deliberate bug, applied in a copy of the tree, and "
             "the first test of its\nselection that failed. Made by `.venv/bin/python "
             "tools/mutation_check.py --report docs/mutation-report.md`\n(the unmutated selection "
-            "passed first).\n\n" + "\n".join(table) + "\n")
+            f"passed first: {len(selected)} tests, {baseline_s:.0f} s; then the {len(rows)} "
+            f"mutations, {sum(s for _, _, s in rows):.0f} s;\n{caught} of {len(rows)} caught).\n\n"
+            "The working tree is never written: the copy lives in a temporary folder, removed on\n"
+            "exit, Ctrl-C or SIGTERM. `tests/test_suite_rules.py` fails when a snippet or a selected\n"
+            "test no longer exists. The webcam outcome test's triangle aperture is not\n"
+            "point-symmetric: a flipped, transposed or shifted kernel (`flip-psf-outcome`,\n"
+            "`transpose-psf`, `shift-psf`) fails that outcome test alone.\n\n"
+            + "\n".join(table) + "\n")
     return 0 if all(v.startswith("caught") for _, v, _ in rows) else 1
 
 
