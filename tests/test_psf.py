@@ -24,6 +24,13 @@ from rtdefocus.calib.psf import (
 from rtdefocus.errors import InputError
 
 DEFAULT, PAPER, BLIND = ("default", False), ("paper", False), ("default", True)
+# Median kernel errors (inside the planes, within NEAR_FOLD px of the fold) per preset and
+# layout: `tools/measure_gains.py --sections psf` (deterministic).
+MEASURED_KERNELS = {
+    ("cubicle", "default"): (0.0800, 0.1196), ("cubicle", "cross_fold"): (0.1969, 0.2008),
+    ("tilted", "default"): (0.0823, 0.1124), ("tilted", "cross_fold"): (0.1917, 0.1894),
+    ("pillar", "default"): (0.0818, 0.0312), ("pillar", "cross_fold"): (0.2764, 0.4624),
+}
 # Largest step of the blended kernel between neighbouring pixels (L1), 1.5x the measured
 # (`tools/measure_gains.py --sections field`: default 0.075, paper <= 0.02; the same fields
 # snapped to their nearest sample step by 0.59 and 1.73).
@@ -41,10 +48,13 @@ def _errors(preset, key):
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_kernel_accuracy(preset):
-    """Relative L2 error of kernel_at against the true kernel (rd.calibrate, noise on)."""
+    """Relative L2 error of kernel_at against the true kernel (rd.calibrate, noise on), median
+    inside the planes and near the fold, within 1.5x of the measured."""
     ei, en = _errors(preset, DEFAULT)
-    assert np.median(ei) <= 0.20, f"inside the planes: median {np.median(ei):.3f}"
-    assert np.median(en) <= 0.30, f"within {NEAR_FOLD} px of the fold: median {np.median(en):.3f}"
+    m_in, m_near = MEASURED_KERNELS[preset, "default"]
+    assert np.median(ei) <= 1.5 * m_in, f"inside the planes: median {np.median(ei):.4f} ({m_in})"
+    assert np.median(en) <= 1.5 * m_near, \
+        f"within {NEAR_FOLD} px of the fold: median {np.median(en):.4f} (measured {m_near})"
 
 
 @pytest.mark.slow
@@ -52,7 +62,8 @@ def test_kernel_accuracy(preset):
 def test_fold_claim(preset):
     """Near the fold the default layout beats the paper's where the fold is the blurriest
     (concave cubicle, tilted fold); the geometry-blind baseline that blends across the fold is
-    clearly worse everywhere (at least 1.4x the default's error).
+    clearly worse everywhere (at least 85 % of its measured ratio to the default's error:
+    1.68 on the cubicle and the tilted fold, 14.8 on the pillar).
 
     On the convex pillar the fold is the sharpest place and both per-plane layouts sit at the
     noise floor there: since the dots are normalised by the white frame minus a smoothed
@@ -65,7 +76,8 @@ def test_fold_claim(preset):
         assert en[DEFAULT] <= en[PAPER] + 0.005, msg
     else:
         assert en[DEFAULT] < en[PAPER], msg
-    assert en[BLIND] >= 1.4 * en[DEFAULT], msg
+    measured = MEASURED_KERNELS[preset, "cross_fold"][1] / MEASURED_KERNELS[preset, "default"][1]
+    assert en[BLIND] >= 0.85 * measured * en[DEFAULT], msg
 
 
 @pytest.mark.slow
