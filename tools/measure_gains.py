@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Measure the compensation gains the quality tests guard, in the tests' own settings, so that
-their thresholds can be set from measurement with a stated margin (issue 16).
+their thresholds can be set from measurement with a stated margin.
 
 Sections (``--sections``, comma-separated):
 
