@@ -90,6 +90,7 @@ def cached_blur(runtime, case, variant):
     return _BLURS[key]
 
 
+@pytest.mark.slow
 @VARIANTS
 def test_forward_matches_reference(cl_runtime, case, variant):
     blur = cached_blur(cl_runtime, case, variant)
@@ -97,6 +98,7 @@ def test_forward_matches_reference(cl_runtime, case, variant):
     assert_close(blur.forward_host(case["img"]), case["fwd"], TOLERANCES["float32"], "forward")
 
 
+@pytest.mark.slow
 @VARIANTS
 def test_adjoint_matches_reference(cl_runtime, case, variant):
     blur = cached_blur(cl_runtime, case, variant)
@@ -397,6 +399,7 @@ def test_row_extent_tables():
     np.testing.assert_array_equal(gext[3], ext[2])
 
 
+@pytest.mark.slow
 @VARIANTS
 @pytest.mark.parametrize("h, w, c", [(48, 64, 3), (41, 53, 1)], ids=["64x48-C3", "53x41-C1"])
 def test_shaped_psfs_match_reference(cl_runtime, variant, h, w, c):

@@ -22,6 +22,7 @@ def demo_result(tmp_path_factory):
                          rooms=("corner_ceiling",))
 
 
+@pytest.mark.slow
 def test_demo_writes_pictures_and_tables(demo_result):
     out, result = demo_result
     names = {p.name for p in out.iterdir()}
@@ -38,17 +39,19 @@ def test_demo_writes_pictures_and_tables(demo_result):
     assert calib.has_psf and calib.n_planes == 2
 
 
+@pytest.mark.slow
 def test_demo_compensation_beats_geometry_only_on_the_photograph(demo_result):
     _, result = demo_result
     row = next(r for r in result["rows"] if r["name"] == "chelsea")
     # Measured (`.venv/bin/python tools/measure_gains.py --sections demo`, OpenCL on PoCL,
-    # 2026-11-29): +3.75 dB PSNR, +0.0292 SSIM; asked for: 70 % of each.
-    assert row["psnr"]["ycbcr"] > row["psnr"]["none"] + 0.7 * 3.75, row["psnr"]
-    assert row["ssim"]["ycbcr"] > row["ssim"]["none"] + 0.7 * 0.0292, row["ssim"]
+    # deterministic): +4.08 dB PSNR, +0.0320 SSIM; asked for: 85 % of each.
+    assert row["psnr"]["ycbcr"] >= row["psnr"]["none"] + 0.85 * 4.08, row["psnr"]
+    assert row["ssim"]["ycbcr"] >= row["ssim"]["none"] + 0.85 * 0.0320, row["ssim"]
     # The paper's Table 1 measure: more edges survive in the camera's view.
     assert row["edges_output"]["defocus"] > row["edges_output"]["geometry"]
 
 
+@pytest.mark.slow
 def test_side_by_side_picture_has_all_panels(demo_result):
     from rtdefocus.imageio import read_image
 
@@ -76,6 +79,7 @@ def test_demo_surfaces_section(tmp_path):
     assert figures["cov"]["defocus + flatten"] < figures["cov"]["defocus only"]
 
 
+@pytest.mark.slow
 def test_demo_shows_a_room_of_three_planes(demo_result):
     """The default demo also calibrates two walls and the ceiling through capture() only."""
     import rtdefocus as rd

@@ -51,6 +51,21 @@ def test_recovery_after_cut():
     assert summ["warm-1"]["share"]["cut"] == pytest.approx(np.mean(gains["warm-1"]) / 3.0)
 
 
+# Camera-view PSNR gains (dB) per segment of the quick clip at 1 iteration a frame, warm and
+# cold, and the offline ceiling (10 cold iterations): `tools/measure_gains.py --sections video`
+# (OpenCL on PoCL; fixed budgets, deterministic). The wall-clock modes and the window depend on
+# the machine's speed: their figures are benchmarks (docs/test-figures.md).
+MEASURED_VIDEO = {
+    "warm-1": {"still": 2.924, "slow pan": 3.365, "fast pan": 3.061, "cut": 3.275, "zoom": 3.866,
+               "fade": 2.579},
+    "cold-1": {"still": 1.907, "slow pan": 1.961, "fast pan": 1.948, "cut": 2.44, "zoom": 2.733,
+               "fade": 2.378},
+    "offline": {"still": 3.768, "slow pan": 3.683, "fast pan": 3.771, "cut": 4.218, "zoom": 4.589,
+                "fade": 4.079},
+}
+MARGIN = 0.85
+
+
 @pytest.mark.slow
 def test_eval_video_quick(tmp_path):
     """`rtdefocus eval --video --quick` writes the table, JSON and plot; the offline ceiling
@@ -75,8 +90,14 @@ def test_eval_video_quick(tmp_path):
     assert all(line.count("|") == len(segments) + 6 for line in table)
     summ = result["summary"]
     for seg in segments:
-        assert summ["offline"]["gain"][seg] > 0.5, seg
         assert summ["offline"]["gain"][seg] > summ["cold-1"]["gain"][seg] > 0, seg
+        # The deterministic modes keep MARGIN of their measured gains, and the warm start of
+        # its measured share of the offline gain, on every segment.
+        for mode in ("warm-1", "cold-1", "offline"):
+            need = MARGIN * MEASURED_VIDEO[mode][seg]
+            assert summ[mode]["gain"][seg] >= need, (mode, seg, summ[mode]["gain"][seg], need)
+        need = MARGIN * MEASURED_VIDEO["warm-1"][seg] / MEASURED_VIDEO["offline"][seg]
+        assert summ["warm-1"]["share"][seg] >= need, (seg, summ["warm-1"]["share"][seg], need)
     assert summ["cold-1"]["cut_recovery_frames"] == 0
     for f in result["frames"]:
         assert f["iterations"]["fps-30"] >= 1

@@ -140,22 +140,65 @@ def test_kink_found_at_a_sharp_bend_and_not_on_a_smooth_one():
 
 
 # --------------------------------------------------------------------------- accuracy per preset
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_checkerboard_through_the_calibrated_warp_is_where_the_rect_says(calibrated, preset):
     """The calibrated geometry end to end: a checkerboard through ``warp`` (the calibration's
     homographies, fold and display rect), seen by the camera with ``sharp=True``, has its inner
-    corners within 0.5 camera px RMS of where ``display_rect`` puts them, and each row and
-    column of corners is straight across the fold (line-fit residual < 0.5 px)."""
-    pc, calib, _ = calibrated(preset)
+    corners within 1.5x their measured RMS distance of where ``display_rect`` puts them, and
+    each row and column of corners straight across the fold (its line-fit residual within 1.5x
+    the measured)."""
+    rms, bend = checker_figures(*calibrated(preset)[:2])
+    m_rms, m_bend = MEASURED_CHECKER[preset]
+    assert rms <= 1.5 * m_rms, f"{preset}: corners {rms:.3f} px RMS from the rect (measured {m_rms})"
+    assert bend <= 1.5 * m_bend, f"{preset}: a row/column of corners bends by {bend:.3f} px RMS " \
+                                 f"(measured {m_bend})"
+
+
+def checker_figures(pc, calib) -> tuple[float, float]:
+    """(RMS of the checkerboard's inner corners from where the display rect puts them, the
+    largest line-fit residual of a row or column of corners), camera px."""
     err, grid = checkerboard.through_warp(pc, calib)
-    rms = float(np.sqrt(np.mean(err ** 2)))
-    assert rms <= 0.5, f"{preset}: corners {rms:.3f} px RMS from the rect (max {err.max():.3f})"
-    for line in list(grid) + list(grid.transpose(1, 0, 2)):
-        centred = line - line.mean(axis=0)
-        residual = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(line))
-        assert residual < 0.5, f"{preset}: a row/column of corners bends by {residual:.3f} px RMS"
+    bends = [np.linalg.svd(line - line.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(line))
+             for line in list(grid) + list(grid.transpose(1, 0, 2))]
+    return float(np.sqrt(np.mean(err ** 2))), float(max(bends))
 
 
+# Measured by `tools/measure_gains.py --sections geometry` (default sizes, noise on; camera px):
+# checkerboard (RMS, largest bend); fold error (projector px) and held-out RMS (camera px).
+MEASURED_CHECKER = {"cubicle": (0.0683, 0.0661), "pillar": (0.0628, 0.0485),
+                    "flat": (0.0632, 0.0513), "tilted": (0.0807, 0.0639),
+                    "offcenter": (0.0689, 0.0793), "fabric": (0.0697, 0.0602)}
+MEASURED_GEOMETRY = {"cubicle": (0.0300, 0.0153), "pillar": (0.0210, 0.0151),
+                     "flat": (None, 0.0146), "tilted": (0.0312, 0.0159),
+                     "offcenter": (0.1890, 0.0181), "fabric": (0.0380, 0.0247)}
+
+
+def truth_figures(pc, calib) -> tuple[float | None, float]:
+    """(fold error: the largest distance, projector px, of the calibrated fold from the true
+    one along its part inside the frame, None without a fold; held-out RMS: 4000 random
+    projector points, 8 px or more from the fold, through the calibrated against the true
+    homography of their plane, camera px)."""
+    truth = pc.truth
+    wp, hp = pc.projector_size
+    rng = np.random.default_rng(11)
+    pts = np.stack([rng.uniform(-0.5, wp - 0.5, 4000), rng.uniform(-0.5, hp - 0.5, 4000)], axis=1)
+    fold_err = None
+    if truth.fold_proj is not None:
+        seg = _frame_segment(truth.fold_proj, pc.projector_size)
+        fold_err = float(np.abs(seg @ calib.fold_proj[:2] + calib.fold_proj[2]).max())
+        pts = pts[np.abs(pts @ truth.fold_proj[:2] + truth.fold_proj[2]) > 8]
+    plane = truth.plane_map[np.clip(np.rint(pts[:, 1]), 0, hp - 1).astype(int),
+                            np.clip(np.rint(pts[:, 0]), 0, wp - 1).astype(int)]
+    err = np.empty(len(pts))
+    for k in range(truth.n_planes):
+        sel = plane == k
+        err[sel] = np.linalg.norm(apply_h(calib.H_cam_from_proj[k], pts[sel])
+                                  - apply_h(truth.H_cam_from_proj[k], pts[sel]), axis=1)
+    return fold_err, float(np.sqrt(np.mean(err ** 2)))
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_geometry_matches_the_truth(calibrated, preset):
     pc, calib, seconds = calibrated(preset)
@@ -167,9 +210,10 @@ def test_geometry_matches_the_truth(calibrated, preset):
     rng = np.random.default_rng(11)
     pts = np.stack([rng.uniform(-0.5, wp - 0.5, 4000), rng.uniform(-0.5, hp - 0.5, 4000)], axis=1)
     if truth.fold_proj is not None:
-        seg = _frame_segment(truth.fold_proj, pc.projector_size)
-        fold_err = float(np.abs(seg @ calib.fold_proj[:2] + calib.fold_proj[2]).max())
-        assert fold_err < 1.0, f"{preset}: fold off by {fold_err:.3f} projector px"
+        fold_err = truth_figures(pc, calib)[0]
+        m_fold = MEASURED_GEOMETRY[preset][0]
+        assert fold_err <= 1.5 * m_fold, f"{preset}: fold off by {fold_err:.3f} projector px " \
+                                         f"(measured {m_fold})"
         assert abs(math.hypot(*calib.fold_proj[:2]) - 1) < 1e-9
         # held-out points away from the fold, on the plane the truth says
         far = np.abs(pts @ truth.fold_proj[:2] + truth.fold_proj[2]) > 8
@@ -195,8 +239,11 @@ def test_geometry_matches_the_truth(calibrated, preset):
             cam = apply_h(truth.H_cam_from_proj[k], pts[sel])
             side = cam @ calib.fold_cam[:2] + calib.fold_cam[2]
             assert np.all((side < 0) if k == 0 else (side > 0))
-    rms = float(np.sqrt(np.mean(err ** 2)))
-    assert rms <= 0.5, f"{preset}: held-out reprojection RMS {rms:.3f} camera px"
+    rms = truth_figures(pc, calib)[1]
+    assert abs(rms - float(np.sqrt(np.mean(err ** 2)))) <= 1e-9
+    m_rms = MEASURED_GEOMETRY[preset][1]
+    assert rms <= 1.5 * m_rms, f"{preset}: held-out reprojection RMS {rms:.3f} camera px " \
+                               f"(measured {m_rms})"
     # the lit outline covers what the camera sees lit by the projector frame
     lit = np.zeros(pc.camera_size[::-1], np.uint8)
     cv2.fillPoly(lit, [np.round(calib.lit_polygon_cam * 16).astype(np.int32)], 1, shift=4)
@@ -209,6 +256,7 @@ def test_geometry_matches_the_truth(calibrated, preset):
           f"{g['fold_disagreement_px']}, captures {g['captures']}, {seconds:.1f} s")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["cubicle", "pillar"])
 def test_display_rect_lies_in_the_lit_area(calibrated, preset):
     pc, calib, _ = calibrated(preset)
@@ -222,6 +270,7 @@ def test_display_rect_lies_in_the_lit_area(calibrated, preset):
         assert w * h > 0.4 * seen.sum(), "rectangle implausibly small"
 
 
+@pytest.mark.slow
 def test_diagnostics_picture(calibrated):
     from rtdefocus.calib.geometry.diagnostics import geometry_diagnostics
 
@@ -277,6 +326,7 @@ def test_lens_distortion_is_not_a_kink():
     assert corner.n_planes == 2 and corner.meta["geometry"]["fold_kinks"] >= 10
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kw", [
     {"projector_gamma": 2.2, "ambient": 0.15, "exposure": 0.6},
     {"projector_gamma": 2.2, "ambient": 0.08, "exposure": 1.4, "camera_gamma": 2.2},
@@ -335,6 +385,7 @@ def test_setup_knocked_and_back_is_reported():
 
 
 # --------------------------------------------------------------------------- layout
+@pytest.mark.slow
 @pytest.mark.parametrize("aspect", [4 / 3, 16 / 9, 1.0, 3.0], ids=["4:3", "16:9", "1:1", "3:1"])
 @pytest.mark.parametrize("preset", ["cubicle", "pillar", "tilted"])
 def test_largest_inscribed_rect_properties(calibrated, preset, aspect):

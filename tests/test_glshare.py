@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from helpers import skip_or_fail
 from test_stream import synthetic_frames, virtual_calibration
 
 import rtdefocus as rd
@@ -38,7 +39,7 @@ def _to_codes(runtime, rgba):
 
 def test_kernel_equals_numpy_twin_every_code(cl_runtime):
     if not cl_runtime.device.image_support:
-        pytest.skip("this OpenCL device has no image support")
+        skip_or_fail("this OpenCL device has no image support")
     rng = np.random.default_rng(3)
     rgba = rng.integers(0, 256, (23, 37, 4), dtype=np.uint8)   # odd sizes: no tiling luck
     rgba.reshape(-1, 4)[:256, :3] = np.arange(256)[:, None]     # every code goes through once
@@ -126,11 +127,15 @@ def test_fallback_is_chosen_here_and_the_device_path_gives_identical_frames(cali
     with caplog.at_level(logging.INFO, logger=glshare.__name__):
         plain = rd.Compensator(calib, backend="opencl", warp_backend="gl", iterations=3)
     lines = [r.getMessage() for r in caplog.records if r.name == glshare.__name__]
+    assert len(lines) == 1, lines
     if plain._gl_share is not None:
-        pytest.skip("this driver shares GL with OpenCL: the fallback is not chosen here")
-    assert len(lines) == 1 and lines[0].startswith("warp -> OpenCL: read-back"), lines
+        # A sharing driver: the log says so, and the read-back twin is made by hand below.
+        assert not lines[0].startswith("warp -> OpenCL: read-back"), lines
+        plain._gl_share = None
+    else:
+        assert lines[0].startswith("warp -> OpenCL: read-back"), lines
     if not get_runtime().device.image_support:
-        pytest.skip("this OpenCL device has no image support")
+        skip_or_fail("this OpenCL device has no image support")
     shared = rd.Compensator(calib, backend="opencl", warp_backend="gl", iterations=3)
     shared._gl_share = fake = HostImageShare(get_runtime())
     frames = synthetic_frames(4) + synthetic_frames(1)[:1]     # moving, then a cut back

@@ -108,6 +108,7 @@ def _procam(**kwargs):
     return rd.HardwareProCam(0, window=proj, capture_factory=dev, **kwargs), proj, dev
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_stale_camera_latency_measured_and_patterns_captured_in_order(caplog):
     """A camera that shows the previous pattern for 0.5 s after each change and keeps a queue
@@ -287,6 +288,7 @@ def fake_hardware(monkeypatch):
     return make
 
 
+@pytest.mark.slow
 def test_cli_check_reports_mode_latency_clipping(fake_hardware, capsys):
     from rtdefocus import cli
 
@@ -335,6 +337,7 @@ def test_cli_calibrate_passes_the_camera_options(monkeypatch):
     assert exc.value.code == 2
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_cli_calibrate_through_a_stale_camera_matches_the_direct_calibration(fake_hardware, tmp_path,
                                                                               capsys):

@@ -103,6 +103,7 @@ print("native ok", runtime.create_context().info["GL_RENDERER"])
 """
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("mode", ["RTDEFOCUS_GL=native", "no-egl"], ids=["glx", "no-egl-platform"])
 def test_window_and_warp_on_glx(display, tmp_path, mode):

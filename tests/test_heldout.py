@@ -10,6 +10,7 @@ tuning saw (scikit-image's immunohistochemistry). Calibrated through capture() o
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import blind_calibrate
 
 from rtdefocus import sim
@@ -31,6 +32,7 @@ MEASURED_PSNR, MEASURED_SSIM = 2.47, 0.0412
 MARGIN = 0.7
 
 
+@pytest.mark.slow
 def test_held_out_setup_gains_most_of_the_measured_gain():
     from skimage import data
 

@@ -212,6 +212,7 @@ def cl_ops(cl_runtime, field, metric, variant):
     return ClSolveOps(cl_runtime, psfs, idx, wts, metric, blur_variant=variant)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("name", list(METRICS), ids=list(METRICS))
 def test_cl_metric_kernels_match_numpy(cl_runtime, field, images, name, variant):
@@ -312,6 +313,7 @@ def test_cl_lut_decode_encode_match_numpy(cl_runtime, field, images, variant):
 _NUMPY_SOLVES: dict = {}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("solver", ["pg", "fista"])
 def test_cl_solver_steps_match_numpy(cl_runtime, field, images, solver, variant):
@@ -345,6 +347,7 @@ def small_problem():
     return (psfs, idx, wts), target
 
 
+@pytest.mark.slow
 def test_fista_restart_on_the_device_matches_numpy_without_read_backs(cl_runtime, small_problem):
     """FISTA's restart test runs on the backend (solver.cl fista_decide / fista_undo): with L
     underestimated 16x, steps are rejected and L doubles on both backends alike, the distance

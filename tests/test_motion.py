@@ -10,6 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from helpers import skip_or_fail
 
 import rtdefocus as rd
 from rtdefocus.compensate.motion import MotionEstimator
@@ -111,6 +112,7 @@ def test_carry_moves_a_field_with_the_picture(pictures):
 
 
 # --------------------------------------------------------------------------- the guarantee
+@pytest.mark.slow
 @pytest.mark.parametrize("iterations", [1, 2, 4])
 def test_warm_start_is_never_farther_than_the_cold_start(calib, pictures, iterations):
     """On every frame of a moving clip (pans, zoom, cut, fade) the solver's own distance with the
@@ -123,6 +125,7 @@ def test_warm_start_is_never_farther_than_the_cold_start(calib, pictures, iterat
     assert not worse, f"frames where the warm start ended farther than the cold one: {worse}"
 
 
+@pytest.mark.slow
 def test_warm_start_follows_the_motion(calib, pictures):
     """At 2 iterations per frame the warm start gets much closer than the cold one on moving
     content (measured here, mean warm/cold distance after each segment's first frame: pan 0.70,
@@ -359,7 +362,7 @@ def test_the_motion_thread_of_a_gpu_device_gives_the_inline_result(calib, pictur
     """On a GPU device the motion estimate runs on a helper thread beside the cold start's blur;
     on a CPU device in turn with it. Both orders give the same frames, bit for bit."""
     if not rd.Compensator(calib).backend == "opencl":
-        pytest.skip("needs an OpenCL device")
+        skip_or_fail("needs an OpenCL device")
     a, _ = pictures
     frames = [_crop(a, 60 + 5 * i, 80 + 2 * i) for i in range(4)]
     outs = {}

@@ -75,6 +75,7 @@ def test_colour_preconditioned_fista_is_closer_at_every_budget_and_stays_monoton
     assert both[6] < plain[12], (plain, both)
 
 
+@pytest.mark.slow
 def test_colour_preconditioned_fista_converges_close_to_the_plain_optimum():
     """The clamp is not the exact projection in C's metric, so the limit may sit a little
     above the plain solver's: measured 0.15-0.4 % on photographs and 1.2 % on saturated colour

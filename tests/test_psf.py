@@ -24,6 +24,17 @@ from rtdefocus.calib.psf import (
 from rtdefocus.errors import InputError
 
 DEFAULT, PAPER, BLIND = ("default", False), ("paper", False), ("default", True)
+# Median kernel errors (inside the planes, within NEAR_FOLD px of the fold) per preset and
+# layout: `tools/measure_gains.py --sections psf` (deterministic).
+MEASURED_KERNELS = {
+    ("cubicle", "default"): (0.0800, 0.1196), ("cubicle", "cross_fold"): (0.1969, 0.2008),
+    ("tilted", "default"): (0.0823, 0.1124), ("tilted", "cross_fold"): (0.1917, 0.1894),
+    ("pillar", "default"): (0.0818, 0.0312), ("pillar", "cross_fold"): (0.2764, 0.4624),
+}
+# Largest step of the blended kernel between neighbouring pixels (L1), 1.5x the measured
+# (`tools/measure_gains.py --sections field`: default 0.075, paper <= 0.02; the same fields
+# snapped to their nearest sample step by 0.59 and 1.73).
+FIELD_JUMP = {"default": 0.112, "paper": 0.03}
 
 
 def _errors(preset, key):
@@ -34,19 +45,25 @@ def _errors(preset, key):
 
 
 # ----------------------------------------------------------------------------- accuracy
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_kernel_accuracy(preset):
-    """Relative L2 error of kernel_at against the true kernel (rd.calibrate, noise on)."""
+    """Relative L2 error of kernel_at against the true kernel (rd.calibrate, noise on), median
+    inside the planes and near the fold, within 1.5x of the measured."""
     ei, en = _errors(preset, DEFAULT)
-    assert np.median(ei) <= 0.20, f"inside the planes: median {np.median(ei):.3f}"
-    assert np.median(en) <= 0.30, f"within {NEAR_FOLD} px of the fold: median {np.median(en):.3f}"
+    m_in, m_near = MEASURED_KERNELS[preset, "default"]
+    assert np.median(ei) <= 1.5 * m_in, f"inside the planes: median {np.median(ei):.4f} ({m_in})"
+    assert np.median(en) <= 1.5 * m_near, \
+        f"within {NEAR_FOLD} px of the fold: median {np.median(en):.4f} (measured {m_near})"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_fold_claim(preset):
     """Near the fold the default layout beats the paper's where the fold is the blurriest
     (concave cubicle, tilted fold); the geometry-blind baseline that blends across the fold is
-    clearly worse everywhere (at least 1.4x the default's error).
+    clearly worse everywhere (at least 85 % of its measured ratio to the default's error:
+    1.68 on the cubicle and the tilted fold, 14.8 on the pillar).
 
     On the convex pillar the fold is the sharpest place and both per-plane layouts sit at the
     noise floor there: since the dots are normalised by the white frame minus a smoothed
@@ -59,9 +76,11 @@ def test_fold_claim(preset):
         assert en[DEFAULT] <= en[PAPER] + 0.005, msg
     else:
         assert en[DEFAULT] < en[PAPER], msg
-    assert en[BLIND] >= 1.4 * en[DEFAULT], msg
+    measured = MEASURED_KERNELS[preset, "cross_fold"][1] / MEASURED_KERNELS[preset, "default"][1]
+    assert en[BLIND] >= 0.85 * measured * en[DEFAULT], msg
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_capture_budget(preset):
     counts = calibrated(preset).calib.meta["captures"]
@@ -73,6 +92,7 @@ def test_capture_budget(preset):
 
 
 # ----------------------------------------------------------------------------- the field
+@pytest.mark.slow
 @pytest.mark.parametrize("key", [DEFAULT, PAPER, BLIND], ids=["default", "paper", "cross_fold"])
 def test_field_blends_within_planes(key):
     """Weights sum to 1 over <= 4 PSFs; per-plane layouts never blend across the fold, the
@@ -94,6 +114,7 @@ def test_field_blends_within_planes(key):
         assert not mixed.any(), f"{mixed.sum()} pixels blend a PSF of the other plane"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_kernel_at_is_a_centred_unit_sum_kernel(preset):
     cal = calibrated(preset).calib
@@ -108,6 +129,7 @@ def test_kernel_at_is_a_centred_unit_sum_kernel(preset):
         assert np.hypot(cx, cy) < 0.3, f"kernel at ({x}, {y}) off-centre by ({cx:.2f}, {cy:.2f})"
 
 
+@pytest.mark.slow
 def test_save_load_roundtrip(tmp_path):
     cal = calibrated("cubicle").variants[PAPER]     # includes the shared fold samples (-1)
     path = cal.save(tmp_path / "paper.npz")
@@ -120,6 +142,7 @@ def test_save_load_roundtrip(tmp_path):
 
 
 # ----------------------------------------------------------------------------- layouts
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
 def test_fold_samples_on_each_side_beyond_the_blur(preset):
     """Default layout: samples near the fold lie on both sides, each farther from the fold
@@ -142,6 +165,7 @@ def test_fold_samples_on_each_side_beyond_the_blur(preset):
         assert gaps.max() <= 160, f"plane {p}: a {gaps.max():.0f} px stretch of fold unsampled"
 
 
+@pytest.mark.slow
 def test_paper_layout_is_four_corners_per_plane_and_two_fold_points():
     res = calibrated("tilted")
     cal = res.variants[PAPER]
@@ -160,6 +184,7 @@ def _affine_model(coef0, coef1):
     return m
 
 
+@pytest.mark.slow
 def test_default_layout_adapts_to_the_blur_gradient():
     """Every pixel blends PSFs whose (modelled) radii differ by <= radius_step, a steeper blur
     gradient gets more samples, and one pattern holds them all."""
@@ -185,6 +210,7 @@ def test_default_layout_adapts_to_the_blur_gradient():
     assert counts[1] > 1.5 * counts[0], counts
 
 
+@pytest.mark.slow
 def test_dense_layout_is_a_grid_per_plane():
     cal = calibrated("cubicle").calib
     model = _affine_model([0.0, 0.0, 3.0], [0.0, 0.0, 3.0])
@@ -201,6 +227,7 @@ def test_dense_layout_is_a_grid_per_plane():
     assert np.array_equal(side, plan.planes[plan.kinds == "grid"])
 
 
+@pytest.mark.slow
 def test_unknown_layout_raises():
     res = calibrated("cubicle")
     with pytest.raises(InputError, match="layout"):
@@ -260,6 +287,7 @@ def test_measured_psf_is_the_dot_image_shifted_not_flipped(dot_size):
 
 
 # ----------------------------------------------------------------------------- diagnostics
+@pytest.mark.slow
 def test_diagnostics_picture_and_radius_map():
     res = calibrated("pillar")
     cal, truth = res.calib, res.procam.truth
@@ -276,3 +304,39 @@ def test_diagnostics_picture_and_radius_map():
     assert np.median(err) < 0.3, f"median radius error {np.median(err):.3f} px"
     with pytest.raises(InputError):
         psf_diagnostics(cal, truth.radius_map[:10])
+
+
+def _field_jump(cal) -> float:
+    """Largest L1 change of the blended kernel ``sum_i w_i psf_i`` between two neighbouring
+    projector pixels of the same plane. A seam (one sample swapped for another) steps by the
+    difference between two measured kernels; a continuous blend by a small fraction of it.
+    The kernels have unit sum, so a pair's step is at most the L1 change of its weights: only
+    pairs whose weights change by more than 0.02 need their kernels built."""
+    hp, wp = cal.pix_idx.shape[:2]
+    n = len(cal.psfs)
+    dense = np.zeros((hp * wp, n), np.float32)
+    rows = np.repeat(np.arange(hp * wp), 4)
+    np.add.at(dense, (rows, cal.pix_idx.reshape(-1)), cal.pix_wts.reshape(-1))
+    dense = dense.reshape(hp, wp, n)
+    plane = cal.plane_map()
+    psfs = cal.psfs.reshape(n, -1).astype(np.float64)
+    jump = 0.02
+    for axis in (0, 1):
+        a = dense[:-1] if axis == 0 else dense[:, :-1]
+        b = dense[1:] if axis == 0 else dense[:, 1:]
+        same = plane[:-1] == plane[1:] if axis == 0 else plane[:, :-1] == plane[:, 1:]
+        step = np.abs(b - a).sum(axis=2)
+        big = same & (step > jump)
+        if big.any():
+            dk = (b[big] - a[big]).astype(np.float64) @ psfs
+            jump = max(jump, float(np.abs(dk).sum(axis=1).max()))
+    return jump
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", [DEFAULT, PAPER], ids=["default", "paper"])
+def test_kernel_field_has_no_seams(key):
+    """Within a plane the kernel field is continuous: one pixel's step changes the blended
+    kernel by a little, never swaps one measured kernel for another (no seams)."""
+    jump = _field_jump(calibrated("tilted").variants[key])
+    assert jump <= FIELD_JUMP[key[0]], f"largest step of the blend between neighbours {jump:.3f}"

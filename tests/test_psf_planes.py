@@ -138,6 +138,7 @@ def test_dots_on_both_sides_of_every_fold(name):
             assert s * (line[:2] @ pts[i] + line[2]) > r, (name, pts[i], p, r)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CASES)
 @pytest.mark.parametrize("layout", ["default", "paper", "dense"])
 def test_blend_never_crosses_a_fold(name, layout):

@@ -41,13 +41,25 @@ def _room(preset: str):
     return pc, calib, figures(pc, calib, {"chelsea": photo}), seconds
 
 
+# `tools/measure_gains.py --sections rooms` (deterministic): errors are asked within 1.5x,
+# gains within 85 %.
+MEASURED = {
+    "u_cubicle": {"fold_px": 0.09296, "homography_rms": 0.02039, "checker_rms": 0.08631,
+                  "checker_bend": 0.06013, "kernel_inside": 0.06984, "kernel_fold": 0.07563,
+                  "gain_oracle_db": 3.495, "gain_share": 0.9926},
+    "corner_ceiling": {"fold_px": 0.2257, "homography_rms": 0.006951, "checker_rms": 0.09624,
+                       "checker_bend": 0.09837, "kernel_inside": 0.08998, "kernel_fold": 0.111,
+                       "gain_oracle_db": 2.063, "gain_share": 0.966},
+}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", ROOMS)
 def test_room_calibrated_end_to_end_meets_the_done_when(preset):
-    """Planes found; every fold within 1 projector px; a checkerboard through the warp within
-    0.5 camera px RMS and no row or column bent by 0.5 px across a fold; kernel relative L2
-    median <= 0.20 inside the planes and <= 0.30 within 12 px of a fold; the compensation gain
-    >= 60 % of the gain with the true kernels."""
+    """Planes found; every fold, the homographies, the checkerboard through the warp (RMS and
+    the worst bend of a row or column across a fold) and the kernels (relative L2 median inside
+    the planes and within 12 px of a fold) within 1.5x of their measured errors; the gain with
+    the true kernels and the calibrated share of it within 85 % of the measured."""
     pc, calib, f, seconds = _room(preset)
     truth = pc.truth
     print(f"\n{preset} {SIZE[0]}x{SIZE[1]}: calibrated in {seconds:.0f} s; {f}")
@@ -55,10 +67,11 @@ def test_room_calibrated_end_to_end_meets_the_done_when(preset):
     to_true, agree = match_planes(calib, truth)
     assert sorted(to_true.tolist()) == [0, 1, 2] and agree > 0.99, (to_true, agree)
     errs = fold_errors(calib, truth)
-    assert len(errs) == len(truth.folds_proj) and max(errs) < 1.0, errs
-    assert f["homography_rms"] < 0.5, f
-    assert f["checker_rms"] <= 0.5 and f["checker_bend"] < 0.5, f
-    assert f["kernel_inside"] <= 0.20 and f["kernel_fold"] <= 0.30, f
-    assert f["gain_oracle_db"] > 1.0 and f["gain_share"] >= 0.6, f
+    m = MEASURED[preset]
+    assert len(errs) == len(truth.folds_proj) and max(errs) <= 1.5 * m["fold_px"], errs
+    for key in ("homography_rms", "checker_rms", "checker_bend", "kernel_inside", "kernel_fold"):
+        assert f[key] <= 1.5 * m[key], (key, f[key], m[key])
+    for key in ("gain_oracle_db", "gain_share"):
+        assert f[key] >= 0.85 * m[key], (key, f[key], m[key])
     assert f["skipped"] == 0, calib.meta["psf"]["skipped"]
     assert np.isfinite(list(f.values())).all(), f

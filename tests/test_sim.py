@@ -67,6 +67,7 @@ def test_bad_arguments():
         pc.truth.kernel_at(800, 10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", list(sim.PRESETS))
 def test_frame_fully_on_walls_and_in_view(preset):
     pc = procam(preset)
@@ -246,6 +247,7 @@ def test_blur_keeps_constant_and_energy_in_interior():
     assert np.abs(blurred - P).max() > 0.3             # and it did blur
 
 
+@pytest.mark.slow
 def test_dot_radius_through_camera_matches_truth():
     """A dot, captured and mapped back through the true homography, has the true radius."""
     pc = procam("cubicle", noise=0.0)

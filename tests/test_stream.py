@@ -442,6 +442,7 @@ def test_budget_keeps_a_repeated_frames_budget_apart():
 
 
 # --------------------------------------------------------------------------- memory
+@pytest.mark.slow
 def test_500_frames_no_memory_growth(comp):
     """No growth as a ratio within the run (tools/bench_stream.py reports the figures)."""
     comp.reset()

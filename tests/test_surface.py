@@ -214,6 +214,7 @@ def _inset(calib, size, frac=0.05):
     return rect_mask((x + dx, y + dy, w - 2 * dx, h - 2 * dy), (hc, wc))
 
 
+@pytest.mark.slow
 def test_keep_is_the_default_and_unchanged(fabric):
     _, calib = fabric
     img = np.random.default_rng(0).integers(0, 256, (45, 60, 3)).astype(np.uint8)
@@ -227,8 +228,10 @@ def test_keep_is_the_default_and_unchanged(fabric):
         rd.Compensator(calib, backend="numpy", surface="flatten", brightness=-1)
 
 
+@pytest.mark.slow
 def test_flatten_makes_a_grey_field_uniform(fabric):
-    """CoV of a flat grey field ≥ 4× lower with flatten (measured 5.6×)."""
+    """The CoV of a flat grey field falls with flatten by at least 85 % of the measured factor
+    (6.63: 0.2307 -> 0.0348; `tools/measure_gains.py --sections surface`)."""
     cam, calib = fabric
     grey = np.full((90, 120, 3), 128, np.uint8)
     mask = _inset(calib, (120, 90))
@@ -239,15 +242,16 @@ def test_flatten_makes_a_grey_field_uniform(fabric):
     info = comp.last_info
     assert info["surface"] == "flatten" and 0 < info["brightness"] < 1
     assert 0 <= info["clipped"] <= 0.05
-    assert cov["keep"] >= 4 * cov["flatten"], cov
+    assert cov["keep"] >= 0.85 * 6.63 * cov["flatten"], cov
 
 
+@pytest.mark.slow
 def test_flatten_photograph_closer_to_a_white_wall(fabric):
-    """Done-when: ≥ 3 dB closer (PSNR after a global gain and offset) to the input on a
-    uniform white wall (measured +9.7 dB on chelsea at 240×180)."""
+    """Closer (PSNR after a global gain and offset) to the input on a uniform white wall by at
+    least 85 % of the measured +9.22 dB (chelsea at 240×180; `tools/measure_gains.py
+    --sections surface`)."""
     import cv2
-
-    data = pytest.importorskip("skimage.data")
+    from skimage import data
     cam, calib = fabric
     img = data.chelsea()
     x, y, w, h = calib.display_rect(img.shape[1::-1])
@@ -258,9 +262,10 @@ def test_flatten_photograph_closer_to_a_white_wall(fabric):
     p = {s: psnr_affine(cam.capture(rd.Compensator(calib, backend="numpy", surface=s,
                                                    iterations=20).compensate(img)), white, mask)
          for s in ("keep", "flatten")}
-    assert p["flatten"] >= p["keep"] + 3.0, p
+    assert p["flatten"] >= p["keep"] + 0.85 * 9.22, p
 
 
+@pytest.mark.slow
 def test_brightness_trades_clipping(fabric):
     _, calib = fabric
     white = np.full((45, 60, 3), 255, np.uint8)
@@ -297,6 +302,7 @@ def _coffee_figures(fabric, kind: str) -> dict:
     return _FIGURES[kind]
 
 
+@pytest.mark.slow
 def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     """Done-when: the defocus gain near the fold with flatten ≥ 60 % of the true-kernel one
     (keep, oracle calibration), on coffee, the photograph that fell short (0.59) before the
@@ -309,6 +315,7 @@ def test_flatten_keeps_the_defocus_gain_near_the_fold(fabric):
     assert gain["coffee/flatten"] >= 0.60 * gain["coffee/keep"], gain
 
 
+@pytest.mark.slow
 def test_flatten_target_is_reachable_and_clipping_reported(fabric):
     """The solve's target is clamped to [0, 1]; what the clamp gives up is reported, and a black
     input is reachable on nearly all of the wall (the black level e is the room light's)."""
@@ -338,6 +345,6 @@ def test_done_when_figures_with_a_calibrated_setup(fabric):
     res = _coffee_figures(fabric, "calibrated")
     oracle = _coffee_figures(fabric, "oracle")
     cov, p, gain = res["cov"], res["psnr_affine"], res["fold_gain"]
-    assert cov["keep"] >= 4 * cov["flatten"], cov
+    assert cov["keep"] >= 0.85 * 6.63 * cov["flatten"], cov
     assert p["coffee/flatten"] >= p["coffee/keep"] + 3.0, p
     assert gain["coffee/flatten"] >= 0.60 * oracle["fold_gain"]["coffee/keep"], (gain, oracle)

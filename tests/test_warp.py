@@ -451,6 +451,7 @@ def _rect_inside(mask: np.ndarray, aspect: float, pad: int = 6):
     return (int(round(cx - w / 2)), int(round(cy - h / 2)), w, h)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["cubicle", "pillar", "flat", "tilted", "offcenter"])
 def test_checkerboard_through_true_geometry_lands_on_the_rect(gl_ctx, preset):
     from rtdefocus import sim

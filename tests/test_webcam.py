@@ -119,6 +119,7 @@ def _superposition(pc, n=2):
     return mean(np.zeros_like(ab), 3), mean(a), mean(b), mean(ab)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kw, tol", [
     ({"preset": "webcam"}, 0.015),                                   # measured 0.005
     ({"preset": "cubicle", "camera_gamma": 1.8, "projector_gamma": 2.2}, 0.01),   # 0.002
@@ -172,15 +173,19 @@ def test_too_few_measured_dots_on_a_plane_is_reported():
 # --------------------------------------------------------------------------- end to end
 @functools.cache
 def _webcam_calibration():
-    """The webcam preset, lens distortion on (k1 = -0.05), at a small size."""
-    pc = sim.VirtualProCam("webcam", projector_size=(320, 240), camera_size=(512, 384))
+    """The webcam preset, lens distortion on (k1 = -0.05), at a small size, with a triangular
+    aperture: not point-symmetric, so a kernel flipped, transposed or shifted anywhere between
+    the dots and the solver changes the figures."""
+    pc = sim.VirtualProCam("webcam", projector_size=(320, 240), camera_size=(512, 384),
+                           aperture="triangle")
     return pc, rd.calibrate(pc)
 
 
+@pytest.mark.slow
 def test_calibration_on_a_webcam_in_a_lit_room():
-    """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, hex chromatic
-    aperture, barrel lens: calibration passes and meets the webcam figures, each
-    measured against the ground truth (tests/setup_figures.py)."""
+    """sRGB camera, projector gamma 2.2, 5 % ambient, 5 % texture, noise 2/255, a triangular
+    chromatic aperture, barrel lens: calibration passes and stays within 1.5x of its measured
+    figures, each measured against the ground truth (tests/setup_figures.py)."""
     from setup_figures import figures
 
     from rtdefocus.study.samples import photographs
@@ -189,15 +194,18 @@ def test_calibration_on_a_webcam_in_a_lit_room():
     assert calib.meta["radiometry"]["camera_response"] == "auto"
     photos = photographs()
     f = figures(pc, calib, {k: photos[k] for k in ("chelsea", "coffee")})
-    # measured (tools/webcam_table.py webcam --size 320x240): k1 -0.0499, camera 0.007,
-    # gamma 2.221, fold 0.11 px, checkerboard 0.09 px, kernels 0.073 / 0.071, gain 103 %
-    assert abs(f["k1"] - f["k1_true"]) < 0.005, f
-    assert f["camera_err"] < 0.03, f
-    assert abs(f["gamma"] / f["gamma_true"] - 1) < 0.03, f
-    assert f["fold_px"] < 1.0, f
-    assert f["checker_rms"] <= 0.5 and f["checker_bend"] < 0.5, f
-    assert f["kernel_inside"] <= 0.20 and f["kernel_fold"] <= 0.30, f
-    assert f["gain_oracle_db"] > 0.5 and f["gain_share"] >= 0.6, f
+    # Each bound is 1.5x the measured error or 85 % of the measured gain (deterministic run;
+    # `tools/measure_gains.py --sections webcam`): k1 -0.0499 for -0.05, camera response
+    # 0.0083, gamma 2.226 for 2.2 (1.2 %), fold 0.030 px, checkerboard 0.101 / bend 0.100 px,
+    # kernels 0.095 inside / 0.067 near the fold, gain 0.873 dB with the true kernels, the
+    # calibrated ones 88.9 % of it.
+    assert abs(f["k1"] - f["k1_true"]) <= 0.00015, f
+    assert f["camera_err"] <= 0.0125, f
+    assert abs(f["gamma"] / f["gamma_true"] - 1) <= 0.0177, f
+    assert f["fold_px"] <= 0.046, f
+    assert f["checker_rms"] <= 0.151 and f["checker_bend"] <= 0.150, f
+    assert f["kernel_inside"] <= 0.143 and f["kernel_fold"] <= 0.100, f
+    assert f["gain_oracle_db"] >= 0.742 and f["gain_share"] >= 0.755, f
 
 
 def _radiometry(**kw):
@@ -212,6 +220,7 @@ def _radiometry(**kw):
     return calibrate_radiometry(pc, calib, capture=Capturer(pc))
 
 
+@pytest.mark.slow
 def test_exposure_drift_is_reported_with_the_fix():
     """An auto-exposure that could not be locked: the white frame taken at the start of the
     radiometry stage and the one taken at its end disagree (exp(0.003 x 6) ~ +2 %)."""
@@ -222,6 +231,7 @@ def test_exposure_drift_is_reported_with_the_fix():
         _radiometry(exposure_drift=0.003)
 
 
+@pytest.mark.slow
 def test_exposure_drift_during_the_geometry_stage_is_reported_with_the_fix():
     """Auto-exposure left on: the geometry stage's white frame and the radiometry stage's first
     one disagree (exp(0.001 x 17 captures) ~ +2 %); the error names the CLI's --lock."""
@@ -231,6 +241,7 @@ def test_exposure_drift_during_the_geometry_stage_is_reported_with_the_fix():
         rd.calibrate(pc, stages=("geometry", "radiometry"))
 
 
+@pytest.mark.slow
 def test_exposure_drift_in_a_geometry_only_calibration_is_reported_with_the_fix():
     """No radiometry stage to check it: the geometry stage's first white frame against its
     last (``white_end``, no extra capture); exp(0.002 x 15 captures) ~ +3 %."""
@@ -260,6 +271,7 @@ def test_exposure_drift_during_the_psf_stage_is_reported_with_the_fix():
     assert pc.exposure_drift == 0.003          # the drift began where the test meant it to
 
 
+@pytest.mark.slow
 def test_an_over_exposed_set_up_is_told_to_lower_the_exposure():
     pc = sim.VirtualProCam("webcam", exposure=3.0, **SMALL)
     with pytest.raises(CalibrationError, match=r"over-exposed.*Lower the camera's exposure"):
@@ -275,6 +287,7 @@ def test_exposure_out_of_range_says_which_way_to_turn_it(exposure, match):
         _radiometry(exposure=exposure)
 
 
+@pytest.mark.slow
 def test_calibration_file_keeps_the_camera_and_reads_version_1(tmp_path):
     _, calib = _webcam_calibration()
     path = calib.save(tmp_path / "webcam.npz")
@@ -334,6 +347,7 @@ def test_radial_k1_and_k2_together_from_straight_lines():
     assert abs(k1b + 0.05) < 0.001 and abs(k2b + 0.04) < 0.001 and rms12 < 0.01, (k1b, k2b)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k1", [-0.05, 0.0])
 def test_geometry_reports_the_lens_k1(k1):
     from rtdefocus.calib.geometry.stage import calibrate_geometry
@@ -374,6 +388,7 @@ def _homography_error(calib, truth) -> float:
     return float(np.concatenate(err).max())
 
 
+@pytest.mark.slow
 def test_geometry_is_in_ideal_camera_pixels():
     """With the lens taken out, the homographies match the truth's (ideal pixels) to a tenth of
     a pixel; left in (undistort=False) they are off by more than half a pixel."""

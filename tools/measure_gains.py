@@ -7,8 +7,18 @@ Sections (``--sections``, comma-separated):
 ``compensate``  tests/test_compensate.py: presets cubicle/tilted/pillar at 400x300 (camera
                 640x480, seed 3), the four photographs; PSNR/SSIM gain of ``ycbcr`` over geometry
                 only over the display rect and in the 16-px band either side of the fold.
+``reference``   tests/test_compensate.py: the production solve against the independent reference.
 ``eval``        ``rtdefocus eval --quick`` (as tests/test_eval.py runs it): gains per row.
 ``demo``        the demo at 400x300 (as tests/test_demo.py runs it): the chelsea row.
+``webcam``      tests/test_webcam.py's calibration on the webcam preset with a triangle
+                aperture: lens, camera response, gamma, fold, checkerboard, kernels, gain.
+``radiometry``  tests/test_radiometry.py: albedo and gamma through a barrel lens, fabric walls.
+``geometry``    tests/test_geometry.py: fold, held-out points and checkerboard per preset.
+``video``       tests/test_eval_video.py: the quick moving clip, fixed budgets and the ceiling.
+``psf``         tests/test_psf.py: median kernel errors per preset and layout.
+``rooms``       tests/test_rooms_e2e.py: the three-plane rooms' figures.
+``surface``     tests/test_surface.py: flatten's grey field and photograph on the fabric walls.
+``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
 
 Example::
 
@@ -45,6 +55,26 @@ def section_compensate() -> None:
                 ds = tc.ssim(v["ycbcr"], v["sharp"], m) - tc.ssim(v["none"], v["sharp"], m)
                 row.append(f"{region}: {dp:+.2f} dB  SSIM {ds:+.4f}")
             print(f"compensate {preset:8s} {name:10s} " + "   ".join(row), flush=True)
+        # test_calibrated_gain_is_most_of_the_oracle_gain and test_ycbcr_beats_rgb_in_luma
+        cal, orc = tc.oracle_gains(preset, images)
+        lead = []
+        for name in tc.PHOTOS:
+            v = tc.camera_views(preset, name, images[name])
+            y = {k: tc.psnr(tc.luma(v[k]), tc.luma(v["sharp"]), v["mask"], data_range=255.0)
+                 for k in ("ycbcr", "rgb")}
+            lead.append(y["ycbcr"] - y["rgb"])
+        print(f"compensate {preset:8s} oracle gain {np.mean(orc):.3f} dB  calibrated "
+              f"{np.mean(cal):.3f} dB  share {np.mean(cal) / np.mean(orc):.4f}  luma lead of "
+              f"ycbcr over rgb {np.mean(lead):.4f} dB (per photo {np.round(lead, 3)})", flush=True)
+
+
+def section_reference() -> None:
+    """tests/test_compensate.py's independent reference solve against the production one."""
+    import test_compensate as tc
+
+    g_ref, g_prod = tc.reference_gains(tc.photographs())
+    print(f"reference {g_ref:.3f} dB  production {g_prod:.3f} dB  share {g_prod / g_ref:.4f}",
+          flush=True)
 
 
 def section_eval() -> None:
@@ -68,14 +98,154 @@ def section_demo() -> None:
     with tempfile.TemporaryDirectory() as out:
         result = run_demo(out, images={k: images[k] for k in ("chelsea", "text")},
                           methods=("ycbcr", "wiener"), projector_size=(400, 300),
-                          camera_size=(640, 480))
+                          camera_size=(640, 480), rooms=("corner_ceiling",))
     for r in result["rows"]:
         print(f"demo {r['name']:16s} PSNR gain {r['psnr']['ycbcr'] - r['psnr']['none']:+.2f} dB"
               f"  SSIM gain {r['ssim']['ycbcr'] - r['ssim']['none']:+.4f}  edges "
               f"{r['edges_output']}")
+    for r in result["rooms"]["corner_ceiling"]["rows"]:
+        print(f"demo corner_ceiling {r['name']:16s} PSNR gain "
+              f"{r['psnr']['ycbcr'] - r['psnr']['none']:+.2f} dB, within 24 px of a fold "
+              f"{r['psnr_fold']['ycbcr'] - r['psnr_fold']['none']:+.2f} dB", flush=True)
 
 
-SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo}
+def section_webcam() -> None:
+    """tests/test_webcam.py's end-to-end calibration (webcam preset, triangle aperture)."""
+    import test_webcam as tw
+    from setup_figures import figures
+
+    from rtdefocus.samples import photographs
+
+    pc, calib = tw._webcam_calibration()
+    photos = photographs()
+    f = figures(pc, calib, {k: photos[k] for k in ("chelsea", "coffee")})
+    print("webcam " + "  ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
+                                for k, v in f.items()), flush=True)
+
+
+def section_radiometry() -> None:
+    """tests/test_radiometry.py's lens test: the radiometry stage on the webcam preset with the
+    fabric walls, reading its frames through the lens (and, for contrast, as if it were ideal)."""
+    from calib_presets import truth_geometry
+    from helpers import Blind
+
+    from rtdefocus import sim
+    from rtdefocus.calib.capture import Capturer
+    from rtdefocus.calib.radiometry import calibrate_radiometry
+
+    for lens in (True, False):
+        pc = sim.VirtualProCam("webcam", texture="fabric", projector_size=(320, 240),
+                               camera_size=(480, 360))
+        calib = truth_geometry(pc)
+        if not lens:
+            calib.camera_distortion = np.zeros(2)
+        out = calibrate_radiometry(Blind(pc), calib, capture=Capturer(Blind(pc)))
+        t = pc.truth
+        r = int(np.ceil(t.radius_map.max())) + 2
+        m = np.zeros(t.radius_map.shape, bool)
+        m[r:-r, r:-r] = True
+        rel = (np.abs(out.albedo_proj - t.albedo_proj) / t.albedo_proj)[m]
+        print(f"radiometry {'lens' if lens else 'no lens':8s} albedo median {np.median(rel):.4f}"
+              f"  p99 {np.percentile(rel, 99):.4f}  gamma {np.round(out.meta['radiometry']['gamma'], 4)}",
+              flush=True)
+
+
+def section_geometry() -> None:
+    """tests/test_geometry.py: each preset calibrated as its fixture does, against the truth."""
+    import test_geometry as tg
+    from helpers import Blind
+
+    import rtdefocus as rd
+    from rtdefocus import sim
+
+    for preset in tg.PRESETS:
+        pc = sim.VirtualProCam(preset)
+        calib = rd.calibrate(Blind(pc), stages=("geometry",))
+        fold, held = tg.truth_figures(pc, calib)
+        rms, bend = tg.checker_figures(pc, calib)
+        print(f"geometry {preset:10s} fold {'-' if fold is None else f'{fold:.4f}'} px  held-out "
+              f"{held:.4f} px  checkerboard {rms:.4f} px  bend {bend:.4f} px", flush=True)
+
+
+def section_video() -> None:
+    """tests/test_eval_video.py's quick run: per segment, the gain of the deterministic modes
+    (fixed budgets and the offline ceiling) and the warm start's share of the offline gain."""
+    from rtdefocus import cli
+
+    with tempfile.TemporaryDirectory() as out:
+        cli.main(["-q", "eval", "--video", "--quick", "-o", out, "--budgets", "1", "--fps", "30"])
+        summ = json.loads((Path(out) / "video.json").read_text())["summary"]
+    for mode in ("warm-1", "cold-1", "offline"):
+        print(f"video {mode:8s} gain " + json.dumps({k: round(v, 3) for k, v in summ[mode]["gain"].items()})
+              + ("" if mode == "offline" else "  share " + json.dumps(
+                  {k: round(v, 3) for k, v in summ[mode]["share"].items()})), flush=True)
+
+
+def section_psf() -> None:
+    """tests/test_psf.py: median kernel errors inside the planes and near the fold per preset
+    and layout (the calibrations of tests/calib_presets.py)."""
+    import test_psf as tp
+
+    for preset in tp.PRESETS:
+        for key in (tp.DEFAULT, tp.PAPER, tp.BLIND):
+            ei, en = tp._errors(preset, key)
+            print(f"psf {preset:8s} {key[0]}{'+cross' if key[1] else '':6s} inside "
+                  f"{np.median(ei):.4f}  near the fold {np.median(en):.4f}", flush=True)
+
+
+def section_rooms() -> None:
+    """tests/test_rooms_e2e.py: the three-plane rooms calibrated end to end, their figures."""
+    import test_rooms_e2e as tr
+
+    for preset in tr.ROOMS:
+        _, _, f, seconds = tr._room(preset)
+        print(f"rooms {preset:15s} " + "  ".join(
+            f"{k} {v:.4g}" for k, v in f.items() if isinstance(v, float)), flush=True)
+
+
+def section_surface() -> None:
+    """tests/test_surface.py: flatten's grey-field CoV and its photograph against a white wall."""
+    import cv2
+    import test_surface as ts
+    from skimage import data
+
+    import rtdefocus as rd
+
+    cam = rd.sim.VirtualProCam("fabric", projector_size=(240, 180), camera_size=(320, 240))
+    calib = rd.sim.oracle_calibration(cam)
+    grey = np.full((90, 120, 3), 128, np.uint8)
+    mask = ts._inset(calib, (120, 90))
+    cov = {s: ts.coefficient_of_variation(cam.capture(rd.Compensator(
+        calib, backend="numpy", surface=s).compensate(grey)), mask) for s in ("keep", "flatten")}
+    img = data.chelsea()
+    x, y, w, h = calib.display_rect(img.shape[1::-1])
+    wc, hc = calib.camera_size
+    white = np.zeros((hc, wc, 3), np.uint8)
+    white[y:y + h, x:x + w] = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    m = ts._inset(calib, img.shape[1::-1])
+    p = {s: ts.psnr_affine(cam.capture(rd.Compensator(calib, backend="numpy", surface=s,
+                                                      iterations=20).compensate(img)), white, m)
+         for s in ("keep", "flatten")}
+    print(f"surface grey CoV keep {cov['keep']:.4f} flatten {cov['flatten']:.4f} (factor "
+          f"{cov['keep'] / cov['flatten']:.3f}); chelsea vs a white wall {p['keep']:.2f} -> "
+          f"{p['flatten']:.2f} dB ({p['flatten'] - p['keep']:+.3f})", flush=True)
+
+
+def section_field() -> None:
+    """tests/test_psf.py's kernel-field continuity: the largest blend step between neighbours."""
+    import test_psf as tp
+    from calib_presets import calibrated
+
+    for key in (tp.DEFAULT, tp.PAPER):
+        print(f"field {key[0]:8s} largest step {tp._field_jump(calibrated('tilted').variants[key]):.4f}",
+              flush=True)
+
+
+SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
+            "webcam": section_webcam, "reference": section_reference, "field": section_field,
+            "radiometry": section_radiometry, "geometry": section_geometry,
+            "video": section_video, "psf": section_psf, "rooms": section_rooms,
+            "surface": section_surface}
 
 
 def main(argv=None) -> int:

@@ -48,6 +48,13 @@ def _level_kernel(step_index: int, aperture: str) -> np.ndarray:
         u, v = np.meshgrid(c, c)
         if aperture == "disc":
             inside = u * u + v * v <= rho * rho
+        elif aperture == "triangle":
+            # Equilateral triangle of circumradius rho about its centroid, one vertex up (-v):
+            # not point-symmetric, so a flipped or transposed kernel is a different kernel.
+            inside = np.ones_like(u, dtype=bool)
+            for ang in (90.0, 210.0, 330.0):          # outward normals of the three edges
+                a = math.radians(ang)
+                inside &= u * math.cos(a) + v * math.sin(a) <= rho / 2.0
         else:  # regular hexagon of circumradius rho, vertices at 0°, 60°, ...
             apothem = rho * math.sqrt(3.0) / 2.0
             inside = np.ones_like(u, dtype=bool)
@@ -83,7 +90,7 @@ def blend_kernel(radius: float, aperture: str = "disc", size: int | None = None)
     Parameters
     ----------
     radius : blur radius in projector px (>= 0).
-    aperture : "disc" or "hex".
+    aperture : "disc", "hex" or "triangle".
     size : odd output size k; None for the full support. A smaller size crops and
         renormalises to unit sum.
 
@@ -112,7 +119,7 @@ class BlurPlan:
     ----------
     pad_radius : (3, H, W) float32 blur radius per channel (px) on the padded projector grid.
     chromatic : per-channel scale of the radius; channels of equal scale share one pass.
-    aperture : "disc" or "hex".
+    aperture : "disc", "hex" or "triangle".
 
     Attributes
     ----------

@@ -97,7 +97,8 @@ class VirtualProCam:
     ambient : ambient irradiance on the walls, relative to a full-on projector (~0.85 mean);
         None: the preset's (the webcam presets' 0.05, else the scene's ``Scene.ambient``, else
         0.02).
-    aperture : "disc" (pillbox, default) or "hex" (regular hexagon of circumradius r).
+    aperture : "disc" (pillbox, default), "hex" (regular hexagon of circumradius r) or
+        "triangle" (equilateral, circumradius r, one vertex up: not point-symmetric).
     chromatic : per-channel (R, G, B) scale of the blur radius (lateral chromatic defocus);
         (1, 1, 1).
     texture : printed albedo texture of the walls: False / "none", True / "faint" (±4 %,
@@ -165,7 +166,7 @@ class VirtualProCam:
         for what, size in (("projector_size", projector_size), ("camera_size", camera_size)):
             if len(size) != 2 or min(int(size[0]), int(size[1])) < 16:
                 raise InputError(f"{what} must be (width, height) with both >= 16; got {size!r}")
-        check_choice(aperture, ("disc", "hex"), "aperture")
+        check_choice(aperture, ("disc", "hex", "triangle"), "aperture")
         chromatic = tuple(float(c) for c in chromatic)
         if len(chromatic) != 3 or min(chromatic) <= 0:
             raise InputError(f"chromatic must be three positive radius scales (R, G, B); got {chromatic}")
