@@ -66,8 +66,8 @@ MUTATIONS = [
              "return stripe * self.spacing + self.first_pixel(phase) + self.width / 2.0",
              (WEBCAM_E2E,),
              "every projector line placed half a pixel off"),
-    Mutation("gray-code-binary", "geometry", "rtdefocus/calib/geometry/structured_light.py",
-             "        g = k ^ (k >> 1)\n", "        g = k\n",
+    Mutation("gray-code-binary", "geometry", "rtdefocus/graycode.py",
+             "    code = index ^ (index >> 1)\n", "    code = index\n",
              ("tests/test_independent.py::test_gray_patterns_carry_the_reflected_binary_code",),
              "plain binary stripes instead of the Gray code"),
     # ---------------------------------------------------------------- lens
@@ -176,8 +176,8 @@ MUTATIONS = [
              ("tests/test_motion.py::test_a_cut_restarts_from_the_target",),
              "a cut is treated as motion: the previous shot's correction is carried"),
     Mutation("catch-up-never", "catch-up", "rtdefocus/stream/loop.py",
-             "        if fit >= b.minimum:\n            return False, min(iterations, fit)\n",
-             "        if True:\n            return False, min(iterations, max(fit, b.minimum))\n",
+             "        if fit >= b.minimum:\n            return \"compensate\", min(iterations, fit)\n",
+             "        if True:\n            return \"compensate\", min(iterations, max(fit, b.minimum))\n",
              ("tests/test_stream.py::test_a_slow_device_keeps_up_with_geometry_only_frames",),
              "a late frame is always compensated, never shown with geometry only"),
     # ---------------------------------------------------------------- the GLSL warp
