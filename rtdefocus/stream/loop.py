@@ -48,7 +48,7 @@ frame neither pays first-use costs nor is timed from a still picture's.
 queue, so every frame is compensated and written, in order, with the full iteration budget.
 
 Still pictures (an image, a folder of slides) need no decoder: they are played by
-:class:`~rtdefocus.stream.slides.SlidesMixin`. Keys, display modes, the per-frame iteration
+:class:`~rtdefocus.stream.slides.Slideshow`. Keys, display modes, the per-frame iteration
 budget and the stats overlay are in :mod:`rtdefocus.stream.controls`.
 """
 
@@ -70,7 +70,7 @@ from .catch_up import CatchUp
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .decoder import END, Decoder, Failure
 from .sinks import Sink
-from .slides import SlidesMixin, SlideWork
+from .slides import Slideshow, StillRefiner
 from .sources import Frame, SlidesSource, Source
 from .stats import LoopStats, Series
 from .threads import SinkWriter
@@ -79,7 +79,7 @@ log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, "int | None"], None]
 
-class Player(SlidesMixin):
+class Player:
     """Runs one source through a Compensator into one sink.
 
     Parameters
@@ -168,7 +168,14 @@ class Player(SlidesMixin):
         self._stop = threading.Event()
         self._hold = threading.Event()       # set while a paced (file) source should wait
         self._last_index = -1
-        self._work: SlideWork | None = None
+        self._refiner = StillRefiner(compensator, self._compensate, self._update_budget,
+                                     iterations=iterations, budget=self.budget,
+                                     max_iterations=self.max_iterations,
+                                     refine_tol=self.refine_tol, refine_max=self.refine_max)
+        #: A slideshow: "next" on the last slide ends the run (a playlist moves on) instead of
+        #: staying there; :attr:`left_at_end` then says so.
+        self.leave_at_end = False
+        self.left_at_end = False
         self.threads = bool(threads)
         self.catch_up = bool(catch_up)
         self._prev_input: np.ndarray | None = None   # the last input (budget kinds, catch-up)
@@ -215,8 +222,33 @@ class Player(SlidesMixin):
         log.debug("%s", self.stats.summary())
         return self.stats
 
-    # ------------------------------------------------------------------ keys
-    def _handle_keys(self) -> None:
+    def compensate_still(self, image: np.ndarray) -> np.ndarray:
+        """The finished compensation of a still picture, as a slide shows it once refined.
+
+        Starts from the picture's own target (not the previous frame), then runs chunks of
+        iterations until the solver converges (see ``refine_tol``, ``refine_max``), or exactly
+        ``iterations`` when the player has a fixed budget.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 RGB
+
+        Returns
+        -------
+        (Hp, Wp, 3) uint8
+        """
+        return self._refiner.finish(image)
+
+    def _run_still(self) -> None:
+        show = Slideshow(self, self.source, self._refiner, cache=self.cache, ahead=self.ahead,
+                         stop=self._stop, progress=self.progress, leave_at_end=self.leave_at_end)
+        show.run(interactive=self.sink.realtime)
+        self.left_at_end = show.left_at_end
+
+    # ------------------------------------------------------------------ frame primitives
+    # (the interface a Slideshow plays through: slides.Screen)
+    def handle_keys(self) -> None:
+        """Apply the keys pressed since the last call to :attr:`controls`."""
         for key in self.sink.poll():
             self.dispatcher.dispatch(key)
 
@@ -238,9 +270,10 @@ class Player(SlidesMixin):
             st.residual = float(dist[-1])
         return out
 
-    def _render(self, image: np.ndarray, *, iterations: int | None = None,
-                warm_start: bool = True) -> np.ndarray:
-        """The frame for the projector in the current mode (full / geometry / off)."""
+    def render(self, image: np.ndarray, *, iterations: int | None = None,
+               warm_start: bool = True) -> np.ndarray:
+        """The frame for the projector in the current mode (full / geometry / off); full
+        compensates with ``iterations`` (default: the Compensator's own budget)."""
         mode = self.controls.mode
         if mode == "off":
             return fit_image(image, self.projector_size)
@@ -269,7 +302,9 @@ class Player(SlidesMixin):
         return (self.budget is not None and prev is not None and prev.shape == image.shape
                 and np.array_equal(prev, image))
 
-    def _present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+    def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+        """Show ``out`` as frame ``index`` (with the overlay when it is on): its latency counts
+        from ``t_read`` (None: not a read frame), its frame time from ``t_start``."""
         st = self.stats
         if self.controls.overlay:
             out = draw_overlay(out, st.overlay_lines(self.controls.mode, self.controls.paused))
@@ -290,6 +325,14 @@ class Player(SlidesMixin):
         return ((catching_up or self.controls.mode == "geometry") and not self.controls.overlay
                 and calib is not None and getattr(self.sink, "can_warp", None) is not None
                 and self.sink.can_warp(calib))
+
+    def present_unrefined(self, image: np.ndarray, index: int, t_start: float) -> None:
+        """Show ``image`` in the current mode other than full (geometry only or off): straight
+        into the window where the warp can render there."""
+        if self._direct_geometry():
+            self._present_warped(image, index, None, t_start)
+        else:
+            self.present(self.render(image), index, None, t_start)
 
     def _present_warped(self, image: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
         self.sink.write_warped(image, index, self.comp.calib)
@@ -338,7 +381,7 @@ class Player(SlidesMixin):
         if self._direct_geometry(catching_up=True):
             self._present_warped(frame.image, frame.index, frame.t_read, t_start)
             return
-        self._present(self._warp(frame.image), frame.index, frame.t_read, t_start)
+        self.present(self._warp(frame.image), frame.index, frame.t_read, t_start)
 
     def _update_budget(self, t_start: float, repeat: bool = False) -> None:
         if self.budget is None or self.controls.mode != "full":
@@ -357,7 +400,8 @@ class Player(SlidesMixin):
             # repeat skips (until a repeat is measured; else a slow device never tries one).
             self.budget.expect(frame_seconds - solve - sec["warp"] - sec["decode"], repeat=True)
 
-    def _idle(self, seconds: float = 0.01) -> None:
+    def idle(self, seconds: float = 0.01) -> None:
+        """Wait ``seconds`` (the window keeps handling its events meanwhile)."""
         window = getattr(self.sink, "window", None)
         if window is not None and hasattr(window, "wait"):
             window.wait(seconds)
@@ -412,7 +456,7 @@ class Player(SlidesMixin):
         held: Frame | None = None
         shown_version = -1
         while True:
-            self._handle_keys()
+            self.handle_keys()
             c = self.controls
             if c.quit:
                 break
@@ -422,11 +466,11 @@ class Player(SlidesMixin):
                 if held is not None:
                     shown_version = self._refresh_held(held, shown_version)
                 else:
-                    self._idle(0.02)
+                    self.idle(0.02)
                 continue
             self._hold.clear()
             self._pause_source(False)
-            self._work = None
+            self._refiner.work = None
             if self.threads:
                 try:
                     item = decoder.queue.get(timeout=0.05 if self.sink.interactive else 1.0)
@@ -459,11 +503,11 @@ class Player(SlidesMixin):
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
                 elif action == "reshow":
-                    self._present(self._last_out, frame.index, frame.t_read, t0)
+                    self.present(self._last_out, frame.index, frame.t_read, t0)
                 else:
-                    out = self._render(frame.image, iterations=iters)
+                    out = self.render(frame.image, iterations=iters)
                     self._last_out = out if self.controls.mode == "full" else None
-                    self._present(out, frame.index, frame.t_read, t0)
+                    self.present(out, frame.index, frame.t_read, t0)
                     self._update_budget(t0, repeat)
                 if self._catch_up is not None and (not still or action == "compensate"):
                     # (a settle is expected to run long)
@@ -476,21 +520,19 @@ class Player(SlidesMixin):
         """Paused video: keep refining the held frame until converged (it continues from the P
         just shown); redraw when a key changes the mode or the overlay."""
         c = self.controls
-        w = self._work
-        if w is None or w.index != held.index:
-            w = self._work = SlideWork(held.index, started=True)
+        w = self._refiner.hold(held.index)
         if c.mode == "full" and not w.done:
             t0 = time.perf_counter()
-            out, _ = self._refine_step(held.index, held.image)
-            self._present(out, held.index, None, t0)
+            out, _ = self._refiner.step(held.index, held.image)
+            self.present(out, held.index, None, t0)
             return c.version
         if c.version != shown_version:
             t0 = time.perf_counter()
-            out = w.last_out if (c.mode == "full" and w.last_out is not None) else self._render(
+            out = w.last_out if (c.mode == "full" and w.last_out is not None) else self.render(
                 held.image, iterations=self._frame_iterations())
-            self._present(out, held.index, None, t0)
+            self.present(out, held.index, None, t0)
             return c.version
-        self._idle(0.02)
+        self.idle(0.02)
         return shown_version
 
 
