@@ -80,6 +80,11 @@ class StillRefiner:
         The adaptive budget, whose iterations make a chunk (else ``max_iterations``).
     max_iterations, refine_tol, refine_max
         See :class:`~rtdefocus.stream.loop.Player`.
+
+    Attributes
+    ----------
+    work : SlideWork or None
+        The still being refined; set to None to start the next one afresh.
     """
 
     def __init__(self, compensator, compensate: Callable[[np.ndarray, int | None, bool], np.ndarray],
