@@ -116,7 +116,7 @@ def test_window_on_a_slowed_device_keeps_the_promise(tmp_path):
     load): no frame that the geometry-only window shows is dropped (only copies of a still
     picture on the screen), no segment is worse than geometry only (camera view against the
     sharp reference, within 0.1 dB), and the long still is compensated once it has lasted."""
-    from rtdefocus.eval_video import run_video_eval
+    from rtdefocus.study.eval_video import run_video_eval
 
     segs = (Segment("still", "still", 80), Segment("pan", "pan", 12, 14.0),
             Segment("cut", "cut", 6), Segment("zoom", "zoom", 8, 0.02))

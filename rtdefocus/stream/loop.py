@@ -37,7 +37,7 @@ per-frame iteration budget adapts to hold the target frame rate
 (:class:`~rtdefocus.stream.controls.IterationBudget`). Where even its minimum does not fit (a
 slow device on moving content), a frame whose compensation, by its measured cost times a safety
 margin, would end after the frame after next has arrived is shown with geometry only
-(``catch_up``; see :data:`CATCH_UP_SHARE`): a warp costs a fraction of a
+(``catch_up``; see :mod:`rtdefocus.stream.catch_up`): a warp costs a fraction of a
 solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
 screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
 ``stats.geometry_frames`` counts them). Before the first frame a live player runs the
@@ -48,13 +48,12 @@ frame neither pays first-use costs nor is timed from a still picture's.
 queue, so every frame is compensated and written, in order, with the full iteration budget.
 
 Still pictures (an image, a folder of slides) need no decoder: they are played by
-:class:`~rtdefocus.stream.slides.SlidesMixin`. Keys, display modes, the per-frame iteration
+:class:`~rtdefocus.stream.slides.Slideshow`. Keys, display modes, the per-frame iteration
 budget and the stats overlay are in :mod:`rtdefocus.stream.controls`.
 """
 
 from __future__ import annotations
 
-import collections
 import logging
 import queue
 import threading
@@ -67,9 +66,11 @@ from .. import __version__
 from ..errors import InputError
 from ..imageio import fit_image
 from .cache import SlideCache, calibration_fingerprint
+from .catch_up import CatchUp
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
+from .decoder import END, Decoder, Failure
 from .sinks import Sink
-from .slides import SlidesMixin, SlideWork
+from .slides import Slideshow, StillRefiner
 from .sources import Frame, SlidesSource, Source
 from .stats import LoopStats, Series
 from .threads import SinkWriter
@@ -78,43 +79,7 @@ log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, "int | None"], None]
 
-#: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
-#: ends before the frame after next arrives (two periods after it was read); otherwise it is
-#: shown with geometry only. The margin starts at 1 / CATCH_UP_SHARE (1.43): a moving frame's
-#: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
-#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises
-#: the margin by CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after
-#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
-#: while the margin is raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
-#: compensated only where the measured costs say it will be on time, so on a device that
-#: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
-CATCH_UP_SHARE = 0.7
-CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX = 1.25, 4.0
-CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
-#: A still picture (the same frame again: a paused file, a still shot) whose compensation does
-#: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
-#: long as that compensation takes with the safety margin: the frames a settle drops are copies
-#: of the picture unless the picture changes during it, which a still that lasted that long
-#: seldom does. Before it the picture is shown with geometry only, after it as compensated
-#: (refined further only where a refinement fits two periods).
-CATCH_UP_STILL_WAIT = 4
-
-
-class _End:
-    """Queue marker: the source is exhausted."""
-
-
-class _Failure:
-    """Queue marker: the decoder failed; the main thread re-raises ``exc``."""
-
-    def __init__(self, exc: BaseException):
-        self.exc = exc
-
-
-_END = _End()
-
-
-class Player(SlidesMixin):
+class Player:
     """Runs one source through a Compensator into one sink.
 
     Parameters
@@ -203,17 +168,19 @@ class Player(SlidesMixin):
         self._stop = threading.Event()
         self._hold = threading.Event()       # set while a paced (file) source should wait
         self._last_index = -1
-        self._work: SlideWork | None = None
+        self._refiner = StillRefiner(compensator, self._compensate, self._update_budget,
+                                     iterations=iterations, budget=self.budget,
+                                     max_iterations=self.max_iterations,
+                                     refine_tol=self.refine_tol, refine_max=self.refine_max)
+        #: A slideshow: "next" on the last slide ends the run (a playlist moves on) instead of
+        #: staying there; :attr:`left_at_end` then says so.
+        self.leave_at_end = False
+        self.left_at_end = False
         self.threads = bool(threads)
         self.catch_up = bool(catch_up)
         self._prev_input: np.ndarray | None = None   # the last input (budget kinds, catch-up)
         self._prev_compensated = False               # ... and whether it was compensated
-        self._margin = 1.0 / CATCH_UP_SHARE          # the catch-up's safety margin on costs
-        self._calm = CATCH_UP_CALM                   # ... moving frames before it steps back
-        self._calm_left = CATCH_UP_CALM
-        self._lost: set[int] = set()                 # frames dropped that were not copies
-        self._still_since = 0                        # index of the current picture's first frame
-        self._settled = False                        # ... and whether it was settled (catch-up)
+        self._catch_up = CatchUp(self.budget) if self.budget is not None else None
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
 
@@ -255,8 +222,33 @@ class Player(SlidesMixin):
         log.debug("%s", self.stats.summary())
         return self.stats
 
-    # ------------------------------------------------------------------ keys
-    def _handle_keys(self) -> None:
+    def compensate_still(self, image: np.ndarray) -> np.ndarray:
+        """The finished compensation of a still picture, as a slide shows it once refined.
+
+        Starts from the picture's own target (not the previous frame), then runs chunks of
+        iterations until the solver converges (see ``refine_tol``, ``refine_max``), or exactly
+        ``iterations`` when the player has a fixed budget.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 RGB
+
+        Returns
+        -------
+        (Hp, Wp, 3) uint8
+        """
+        return self._refiner.finish(image)
+
+    def _run_still(self) -> None:
+        show = Slideshow(self, self.source, self._refiner, cache=self.cache, ahead=self.ahead,
+                         stop=self._stop, progress=self.progress, leave_at_end=self.leave_at_end)
+        show.run(interactive=self.sink.realtime)
+        self.left_at_end = show.left_at_end
+
+    # ------------------------------------------------------------------ frame primitives
+    # (the interface a Slideshow plays through: slides.Screen)
+    def handle_keys(self) -> None:
+        """Apply the keys pressed since the last call to :attr:`controls`."""
         for key in self.sink.poll():
             self.dispatcher.dispatch(key)
 
@@ -278,9 +270,10 @@ class Player(SlidesMixin):
             st.residual = float(dist[-1])
         return out
 
-    def _render(self, image: np.ndarray, *, iterations: int | None = None,
-                warm_start: bool = True) -> np.ndarray:
-        """The frame for the projector in the current mode (full / geometry / off)."""
+    def render(self, image: np.ndarray, *, iterations: int | None = None,
+               warm_start: bool = True) -> np.ndarray:
+        """The frame for the projector in the current mode (full / geometry / off); full
+        compensates with ``iterations`` (default: the Compensator's own budget)."""
         mode = self.controls.mode
         if mode == "off":
             return fit_image(image, self.projector_size)
@@ -309,7 +302,9 @@ class Player(SlidesMixin):
         return (self.budget is not None and prev is not None and prev.shape == image.shape
                 and np.array_equal(prev, image))
 
-    def _present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+    def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+        """Show ``out`` as frame ``index`` (with the overlay when it is on): its latency counts
+        from ``t_read`` (None: not a read frame), its frame time from ``t_start``."""
         st = self.stats
         if self.controls.overlay:
             out = draw_overlay(out, st.overlay_lines(self.controls.mode, self.controls.paused))
@@ -331,6 +326,14 @@ class Player(SlidesMixin):
                 and calib is not None and getattr(self.sink, "can_warp", None) is not None
                 and self.sink.can_warp(calib))
 
+    def present_unrefined(self, image: np.ndarray, index: int, t_start: float) -> None:
+        """Show ``image`` in the current mode other than full (geometry only or off): straight
+        into the window where the warp can render there."""
+        if self._direct_geometry():
+            self._present_warped(image, index, None, t_start)
+        else:
+            self.present(self.render(image), index, None, t_start)
+
     def _present_warped(self, image: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
         self.sink.write_warped(image, index, self.comp.calib)
         t1 = time.perf_counter()
@@ -343,71 +346,14 @@ class Player(SlidesMixin):
 
     def _catch_up_iterations(self, frame: Frame, iterations: int | None, still: bool,
                              repeat: bool) -> tuple[str, int | None]:
-        """Realtime, full mode, adaptive budget: what to show for ``frame``, as ``(action, n)``.
-
-        ``("compensate", n)`` with the iterations n (at most ``iterations``) whose expected
-        cost, times the safety margin, lets ``frame`` end before the frame after next arrives
-        (one period after the next one), or n = 0 where no iteration fits but the start alone
-        does (the previous correction carried along the motion: never farther from the target
-        than geometry only). Where nothing fits: ``("geometry", None)`` (the next frame would be
-        dropped and this one shown late: geometry only keeps up instead); for a picture that
-        did not change since the frame before (a still, a paused video file): ``("reshow",
-        None)`` once it is compensated (its last output again, at no cost); before that, once,
-        ``("settle", n)`` (compensate, though it may end late) where the picture has stayed
-        :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else ``("geometry", None)``.
-        Outside the catch-up: ``("compensate", iterations)``."""
-        b = self.budget
-        go = ("compensate", iterations)
-        if (b is None or iterations is None or not self.catch_up or not self.live
+        """Realtime, full mode, adaptive budget: what to show for ``frame``, as ``(action, n)``
+        (:meth:`CatchUp.decide <rtdefocus.stream.catch_up.CatchUp.decide>`). Outside the
+        catch-up: ``("compensate", iterations)``."""
+        if (self._catch_up is None or iterations is None or not self.catch_up or not self.live
                 or self.controls.mode != "full"):
-            return go
-        rest = b.frame_seconds(0, repeat, deadline=True)
-        if rest is None:
-            return go
-        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - self._margin * rest
-        per_it = self._margin * b.per_iteration
-        fit = int(left / per_it) if per_it > 0 else iterations
-        if fit >= b.minimum:
-            return "compensate", min(iterations, fit)
-        if still:
-            if repeat and self._last_out is not None:
-                return "reshow", None
-            # One settle per picture: one that has lasted CATCH_UP_STILL_WAIT times as long as
-            # its compensation takes seldom ends during it (a late frame drops copies of it).
-            lasted = (frame.index - self._still_since) * b.period
-            room = lasted / (CATCH_UP_STILL_WAIT * self._margin) - rest
-            n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
-            if not self._settled and n >= b.minimum:
-                self._settled = True
-                return "settle", min(iterations, n)
-            return "geometry", None
-        if left >= 0:
-            return "compensate", 0
-        return "geometry", None
-
-    def _judge_catch_up(self, frame: Frame, compensated: bool) -> None:
-        """After a moving frame: a compensated one that ended after the frame after next
-        arrived raises the safety margin; moving frames without a late one step it back (see
-        :data:`CATCH_UP_SHARE`)."""
-        b = self.budget
-        if b is None:
-            return
-        base = 1.0 / CATCH_UP_SHARE
-        if compensated and time.perf_counter() - frame.t_read > 2.0 * b.period:
-            if self._margin > base:          # late again before the margin was back
-                self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
-            self._margin = min(self._margin * CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX)
-            self._calm_left = self._calm
-            log.debug("catch-up: frame %d ended late; safety margin %.2f", frame.index,
-                      self._margin)
-            return
-        if self._margin <= base:
-            self._calm = self._calm_left = CATCH_UP_CALM
-            return
-        self._calm_left -= 1
-        if self._calm_left <= 0:
-            self._margin = max(base, self._margin / CATCH_UP_MARGIN_STEP)
-            self._calm_left = self._calm
+            return "compensate", iterations
+        return self._catch_up.decide(frame, iterations, still, repeat,
+                                     can_reshow=self._last_out is not None)
 
     def _warm_up(self) -> None:
         """Live playback with an adaptive budget: run the Compensator's video path once before
@@ -435,7 +381,7 @@ class Player(SlidesMixin):
         if self._direct_geometry(catching_up=True):
             self._present_warped(frame.image, frame.index, frame.t_read, t_start)
             return
-        self._present(self._warp(frame.image), frame.index, frame.t_read, t_start)
+        self.present(self._warp(frame.image), frame.index, frame.t_read, t_start)
 
     def _update_budget(self, t_start: float, repeat: bool = False) -> None:
         if self.budget is None or self.controls.mode != "full":
@@ -454,7 +400,8 @@ class Player(SlidesMixin):
             # repeat skips (until a repeat is measured; else a slow device never tries one).
             self.budget.expect(frame_seconds - solve - sec["warp"] - sec["decode"], repeat=True)
 
-    def _idle(self, seconds: float = 0.01) -> None:
+    def idle(self, seconds: float = 0.01) -> None:
+        """Wait ``seconds`` (the window keeps handling its events meanwhile)."""
         window = getattr(self.sink, "window", None)
         if window is not None and hasattr(window, "wait"):
             window.wait(seconds)
@@ -462,105 +409,16 @@ class Player(SlidesMixin):
             time.sleep(seconds)
 
     # ------------------------------------------------------------------ sequences
-    def _decoder(self, q: queue.Queue) -> None:
-        """Decoder thread: read, pace, enqueue (drop-oldest when live, blocking otherwise)."""
-        src, st = self.source, self.stats
-        read = st.stages["read"]   # created before the thread starts: no dict resize here
-        pace = (1.0 / self.fps) if (self.sink.realtime and not src.live) else None
-        t_next: float | None = None
-        recent: collections.deque = collections.deque(maxlen=self.queue_size + 2)  # (copies)
-        try:
-            while not self._stop.is_set():
-                if pace is not None:
-                    if self._hold.is_set():          # paused file playback: stop reading
-                        self._stop.wait(0.02)
-                        t_next = None
-                        continue
-                    now = time.perf_counter()
-                    if t_next is None or now - t_next > pace:
-                        t_next = now                 # (re)start the clock; never burst to catch up
-                    elif t_next > now and self._stop.wait(t_next - now):
-                        break
-                    t_next += pace
-                t0 = time.perf_counter()
-                frame = src.read()
-                if frame is None:
-                    break
-                read.add(time.perf_counter() - t0)
-                st.frames_in += 1
-                if self.live:
-                    recent.append(frame)
-                    self._put_latest(q, frame, recent)
-                else:
-                    self._put_blocking(q, frame)
-        except BaseException as exc:  # handed to the main thread, which re-raises it
-            if hasattr(exc, "add_note"):
-                exc.add_note(f"(raised by {src.describe()} on the decoder thread)")
-            self._put_blocking(q, _Failure(exc))
-            return
-        self._put_blocking(q, _END)
-
-    def _put_latest(self, q: queue.Queue, item, recent=()) -> None:
-        """Queue ``item``, dropping the oldest waiting frame when the queue is full. A dropped
-        frame with the same picture as the frame queued before it (``recent``: the last frames
-        queued, in order), whose picture reached the screen, is also counted in
-        ``stats.dropped_copies``."""
-        while True:
-            try:
-                q.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    stale = q.get_nowait()   # the oldest waiting frame: superseded, drop it
-                except queue.Empty:
-                    continue
-                if isinstance(stale, Frame):
-                    self.stats.dropped += 1
-                    if self._is_copy(stale, recent):
-                        self.stats.dropped_copies += 1
-                    else:
-                        self._lost.add(stale.index)
-
-    def _is_copy(self, stale: Frame, recent) -> bool:
-        """``stale`` repeats the picture of the frame queued just before it, and that one's
-        picture reached the screen (taken by the main thread, or itself a copy)."""
-        before = None
-        for f in recent:
-            if f is stale:
-                break
-            before = f
-        else:
-            return False
-        return (before is not None and before.index not in self._lost
-                and before.image.shape == stale.image.shape
-                and np.array_equal(before.image, stale.image))
-
-    def _put_blocking(self, q: queue.Queue, item) -> None:
-        while not self._stop.is_set():
-            try:
-                q.put(item, timeout=0.05)
-                return
-            except queue.Full:
-                continue
-
-    def _read_inline(self):
-        """``threads=False``: the next frame read on this thread (or the end marker)."""
-        t0 = time.perf_counter()
-        frame = self.source.read()
-        if frame is None:
-            return _END
-        self.stats.stages["read"].add(time.perf_counter() - t0)
-        self.stats.frames_in += 1
-        return frame
-
     def _run_sequence(self) -> None:
         st = self.stats
         self._warm_up()
         st.stages["read"] = Series()  # created here: the decoder never resizes the dict
-        q: queue.Queue = queue.Queue(maxsize=self.queue_size)
+        pace = (1.0 / self.fps) if (self.sink.realtime and not self.source.live) else None
+        decoder = Decoder(self.source, st, queue_size=self.queue_size, live=self.live, pace=pace,
+                          stop=self._stop, hold=self._hold)
         thread = None
         if self.threads:
-            thread = threading.Thread(target=self._decoder, args=(q,), name="rtdefocus-decode",
+            thread = threading.Thread(target=decoder.run, name="rtdefocus-decode",
                                       daemon=True)
             thread.start()
         ok = False
@@ -568,7 +426,7 @@ class Player(SlidesMixin):
             if self.threads and getattr(self.sink, "threaded", False):
                 st.stages["write"] = Series()   # the writer thread's own series
                 self._writer = SinkWriter(self.sink, maxsize=2, series=st.stages["write"])
-            self._play_frames(q)
+            self._play_frames(decoder)
             if self._writer is not None:
                 t0 = time.perf_counter()
                 self._writer.finish()            # the queued frames, written; its error raised
@@ -594,11 +452,11 @@ class Player(SlidesMixin):
             self._source_paused = paused
             pause(paused)
 
-    def _play_frames(self, q: queue.Queue) -> None:
+    def _play_frames(self, decoder: Decoder) -> None:
         held: Frame | None = None
         shown_version = -1
         while True:
-            self._handle_keys()
+            self.handle_keys()
             c = self.controls
             if c.quit:
                 break
@@ -608,21 +466,21 @@ class Player(SlidesMixin):
                 if held is not None:
                     shown_version = self._refresh_held(held, shown_version)
                 else:
-                    self._idle(0.02)
+                    self.idle(0.02)
                 continue
             self._hold.clear()
             self._pause_source(False)
-            self._work = None
+            self._refiner.work = None
             if self.threads:
                 try:
-                    item = q.get(timeout=0.05 if self.sink.interactive else 1.0)
+                    item = decoder.queue.get(timeout=0.05 if self.sink.interactive else 1.0)
                 except queue.Empty:
                     continue
             else:
-                item = self._read_inline()
-            if item is _END:
+                item = decoder.read_inline()
+            if item is END:
                 break
-            if isinstance(item, _Failure):
+            if isinstance(item, Failure):
                 raise item.exc
             frame: Frame = item
             if frame.index <= self._last_index:  # the queue is FIFO; this would be a bug
@@ -636,8 +494,8 @@ class Player(SlidesMixin):
                 # compensated, which then skips the warp and the motion estimate (budget kinds)
                 still = self._same_as_previous(frame.image)
                 repeat = still and self._prev_compensated
-                if not still:
-                    self._still_since, self._settled = frame.index, False
+                if not still and self._catch_up is not None:
+                    self._catch_up.new_picture(frame.index)
                 action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
                                                           still, repeat)
                 geometry = action == "geometry"
@@ -645,14 +503,15 @@ class Player(SlidesMixin):
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
                 elif action == "reshow":
-                    self._present(self._last_out, frame.index, frame.t_read, t0)
+                    self.present(self._last_out, frame.index, frame.t_read, t0)
                 else:
-                    out = self._render(frame.image, iterations=iters)
+                    out = self.render(frame.image, iterations=iters)
                     self._last_out = out if self.controls.mode == "full" else None
-                    self._present(out, frame.index, frame.t_read, t0)
+                    self.present(out, frame.index, frame.t_read, t0)
                     self._update_budget(t0, repeat)
-                if not still or action == "compensate":   # (a settle is expected to run long)
-                    self._judge_catch_up(frame, compensated=action == "compensate")
+                if self._catch_up is not None and (not still or action == "compensate"):
+                    # (a settle is expected to run long)
+                    self._catch_up.judge(frame, compensated=action == "compensate")
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)
@@ -661,21 +520,19 @@ class Player(SlidesMixin):
         """Paused video: keep refining the held frame until converged (it continues from the P
         just shown); redraw when a key changes the mode or the overlay."""
         c = self.controls
-        w = self._work
-        if w is None or w.index != held.index:
-            w = self._work = SlideWork(held.index, started=True)
+        w = self._refiner.hold(held.index)
         if c.mode == "full" and not w.done:
             t0 = time.perf_counter()
-            out, _ = self._refine_step(held.index, held.image)
-            self._present(out, held.index, None, t0)
+            out, _ = self._refiner.step(held.index, held.image)
+            self.present(out, held.index, None, t0)
             return c.version
         if c.version != shown_version:
             t0 = time.perf_counter()
-            out = w.last_out if (c.mode == "full" and w.last_out is not None) else self._render(
+            out = w.last_out if (c.mode == "full" and w.last_out is not None) else self.render(
                 held.image, iterations=self._frame_iterations())
-            self._present(out, held.index, None, t0)
+            self.present(out, held.index, None, t0)
             return c.version
-        self._idle(0.02)
+        self.idle(0.02)
         return shown_version
 
 

@@ -1,4 +1,4 @@
-"""Still pictures and slideshows: the stills half of :class:`~rtdefocus.stream.loop.Player`.
+"""Still pictures and slideshows, played for :class:`~rtdefocus.stream.loop.Player`.
 
 Still pictures (an image, a folder of slides) need no decoder: the current slide is refined
 in short chunks (warm-started from the previous chunk) until the solver converges, the result
@@ -12,13 +12,18 @@ depend on what was shown before.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
+from .controls import Controls, IterationBudget
 from .sources import SlidesSource
+from .stats import LoopStats
 
 log = logging.getLogger(__name__)
 
@@ -34,48 +39,95 @@ class SlideWork:
     last_out: np.ndarray | None = None
 
 
-class SlidesMixin:
-    """Plays still pictures: one refined picture into a file sink, or an interactive slideshow.
+class Screen(Protocol):
+    """What a :class:`Slideshow` needs of the player that owns it: its controls and statistics,
+    and the frame primitives that render, time and show a frame."""
 
-    Mixed into :class:`~rtdefocus.stream.loop.Player`, which provides the state and the frame
-    primitives used here: ``comp``, ``source``, ``sink``, ``controls``, ``stats``, ``cache``,
-    ``budget``, ``iterations``, ``max_iterations``, ``refine_tol``, ``refine_max``, ``ahead``,
-    ``progress``, ``_stop``, ``_work`` (all set in ``Player.__init__``) and ``_compensate``,
-    ``_render``, ``_present``, ``_present_warped``, ``_direct_geometry``, ``_handle_keys``,
-    ``_idle``, ``_update_budget``.
+    controls: Controls
+    stats: LoopStats
+
+    def handle_keys(self) -> None:
+        """Apply the keys pressed since the last call to :attr:`controls`."""
+
+    def idle(self, seconds: float = 0.01) -> None:
+        """Wait a little (the window stays responsive)."""
+
+    def render(self, image: np.ndarray) -> np.ndarray:
+        """The frame for the projector in the current mode (full / geometry / off)."""
+
+    def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
+        """Show ``out`` (with the overlay when it is on), timed from ``t_start``."""
+
+    def present_unrefined(self, image: np.ndarray, index: int, t_start: float) -> None:
+        """Show ``image`` in the current mode other than full (geometry only or off)."""
+
+
+class StillRefiner:
+    """Refines still pictures in chunks of iterations until the solver converges.
+
+    Parameters
+    ----------
+    compensator : rtdefocus.Compensator
+        Read for ``last_info`` after each chunk.
+    compensate : callable(image, iterations, warm_start) -> frame
+        Runs one chunk (the player's timed compensation).
+    measured : callable(t_start)
+        Called after each chunk with its start time (the player's iteration budget learns
+        from it).
+    iterations : int, optional
+        A fixed budget: exactly that many iterations, from the picture's own target.
+    budget : IterationBudget, optional
+        The adaptive budget, whose iterations make a chunk (else ``max_iterations``).
+    max_iterations, refine_tol, refine_max
+        See :class:`~rtdefocus.stream.loop.Player`.
+
+    Attributes
+    ----------
+    work : SlideWork or None
+        The still being refined; set to None to start the next one afresh.
     """
 
-    _work: SlideWork | None
-    #: Interactive show: "next" on the last slide ends the run (a playlist moves on) instead of
-    #: staying there; :attr:`left_at_end` then says so.
-    leave_at_end = False
-    left_at_end = False
+    def __init__(self, compensator, compensate: Callable[[np.ndarray, int | None, bool], np.ndarray],
+                 measured: Callable[[float], None], *, iterations: int | None,
+                 budget: IterationBudget | None, max_iterations: int, refine_tol: float,
+                 refine_max: int):
+        self.comp, self._compensate, self._measured = compensator, compensate, measured
+        self.iterations, self.budget = iterations, budget
+        self.max_iterations, self.refine_tol, self.refine_max = max_iterations, refine_tol, refine_max
+        self.work: SlideWork | None = None
 
     def _chunk(self) -> int:
         if self.budget is not None:
             return max(1, self.budget.iterations)
         return self.max_iterations
 
-    def _refine_step(self, index: int, image: np.ndarray) -> tuple[np.ndarray, bool]:
+    def hold(self, index: int) -> SlideWork:
+        """The work on frame ``index`` (a paused video's held frame), started where it is not:
+        its refinement continues from the P just shown."""
+        if self.work is None or self.work.index != index:
+            self.work = SlideWork(index, started=True)
+        return self.work
+
+    def step(self, index: int, image: np.ndarray) -> tuple[np.ndarray, bool]:
         """One chunk of iterations on still ``index``; returns (frame, converged).
 
         The first chunk of a new still starts from its target (``warm_start=False``), so the
         result does not depend on what was shown before; later chunks continue from the
         previous one's P.
         """
-        w = self._work
+        w = self.work
         if w is None or w.index != index:
-            w = self._work = SlideWork(index)
+            w = self.work = SlideWork(index)
         if w.done and w.last_out is not None:
             return w.last_out, True
         if self.iterations is not None:          # a fixed budget: exactly that, from the target
-            w.last_out, w.done = self._compensate(image, self.iterations, warm_start=False), True
+            w.last_out, w.done = self._compensate(image, self.iterations, False), True
             return w.last_out, True
         t0 = time.perf_counter()
         n = min(self._chunk(), max(1, self.refine_max - w.iterations))
-        out = self._compensate(image, n, warm_start=w.started)
+        out = self._compensate(image, n, w.started)
         w.started = True
-        self._update_budget(t0)
+        self._measured(t0)
         info = getattr(self.comp, "last_info", None) or {}
         its = int(info.get("iterations", n) or 0)
         dist = info.get("distances") or []
@@ -90,62 +142,84 @@ class SlidesMixin:
             log.debug("still %d converged after %d iterations", index, w.iterations)
         return out, done
 
-    def compensate_still(self, image: np.ndarray) -> np.ndarray:
-        """The finished compensation of a still picture, as a slide shows it once refined.
-
-        Starts from the picture's own target (not the previous frame), then runs chunks of
-        iterations until the solver converges (see ``refine_tol``, ``refine_max``), or exactly
-        ``iterations`` when the player has a fixed budget.
-
-        Parameters
-        ----------
-        image : (H, W, 3) uint8 RGB
-
-        Returns
-        -------
-        (Hp, Wp, 3) uint8
-        """
+    def finish(self, image: np.ndarray) -> np.ndarray:
+        """The finished compensation of ``image`` (see
+        :meth:`~rtdefocus.stream.loop.Player.compensate_still`)."""
         if self.iterations is not None:
-            return self._compensate(image, self.iterations, warm_start=False)
-        self._work = None
+            return self._compensate(image, self.iterations, False)
+        self.work = None
         while True:
-            out, done = self._refine_step(-1, image)
+            out, done = self.step(-1, image)
             if done:
-                self._work = None
+                self.work = None
                 return out
 
-    def _run_still(self) -> None:
-        src: SlidesSource = self.source  # type: ignore[assignment]
-        if self.sink.realtime:
-            self._run_show(src)
+
+class Slideshow:
+    """Plays still pictures: one refined picture into a file sink, or an interactive slideshow.
+
+    Parameters
+    ----------
+    screen : Screen
+        The player that owns the show: keys, rendering and presenting frames.
+    source : SlidesSource
+    refiner : StillRefiner
+    cache : SlideCache, optional
+        Where compensated slides are kept across runs.
+    ahead : int
+        Slides compensated ahead of the current one while the show is idle.
+    stop : threading.Event
+        Set to end the run.
+    progress : callable(done, total), optional
+        Called after each slide written into a file sink.
+    leave_at_end : bool
+        Interactive show: "next" on the last slide ends the run (a playlist moves on) instead
+        of staying there; :attr:`left_at_end` then says so.
+    """
+
+    def __init__(self, screen: Screen, source: SlidesSource, refiner: StillRefiner, *,
+                 cache=None, ahead: int = 2, stop: threading.Event,
+                 progress: Callable[[int, int | None], None] | None = None,
+                 leave_at_end: bool = False):
+        self.screen, self.source, self.refiner = screen, source, refiner
+        self.cache, self.ahead, self._stop, self.progress = cache, ahead, stop, progress
+        self.leave_at_end = leave_at_end
+        self.left_at_end = False
+
+    def run(self, interactive: bool) -> None:
+        """Show the slides in a window (``interactive``), else write each one refined."""
+        if interactive:
+            self._run_show()
             return
+        src, screen = self.source, self.screen
         store = _SlideStore(src, self.cache)
         for i in range(src.n_frames):
             if self._stop.is_set():
                 break
             t0 = time.perf_counter()
             image = src.load(i)
-            self.stats.frames_in += 1
-            if self.controls.mode != "full":
-                out = self._render(image)
+            screen.stats.frames_in += 1
+            if screen.controls.mode != "full":
+                out = screen.render(image)
             else:
                 out = store.get(i)
                 if out is None:
-                    out = self.compensate_still(image)
+                    out = self.refiner.finish(image)
                     store.put(i, out)
-            self._present(out, i, None, t0)
+            screen.present(out, i, None, t0)
             if self.progress:
-                self.progress(self.stats.frames_out, src.n_frames)
+                self.progress(screen.stats.frames_out, src.n_frames)
 
-    def _run_show(self, src: SlidesSource) -> None:
+    def _run_show(self) -> None:
         """Interactive slideshow in the window: refine, cache, compensate ahead, navigate."""
-        c = self.controls
+        src, screen, refiner = self.source, self.screen, self.refiner
+        c = screen.controls
         n = src.n_frames
         store = _SlideStore(src, self.cache, keep=max(4, 2 * self.ahead + 2))
         current, shown, last_overlay = 0, None, 0.0
         seen: set[int] = set()
         while True:
-            self._handle_keys()
+            screen.handle_keys()
             if c.quit:
                 break
             if c.step:
@@ -157,48 +231,44 @@ class SlidesMixin:
                 c.step = 0
             if current not in seen:
                 seen.add(current)
-                self.stats.frames_in += 1
+                screen.stats.frames_in += 1
             want = (current, c.mode, c.version)
             t0 = time.perf_counter()
             if c.mode != "full":
                 if shown != want:
-                    if self._direct_geometry():
-                        self._present_warped(src.load(current), current, None, t0)
-                    else:
-                        self._present(self._render(src.load(current)), current, None, t0)
+                    screen.present_unrefined(src.load(current), current, t0)
                     shown = want
                 else:
-                    self._idle(0.02)
+                    screen.idle(0.02)
                 continue
             result = store.get(current)
             if result is None and not c.paused:
                 # Refine the current slide, showing each chunk: sharpens in front of the audience.
                 image = src.load(current)
-                out, done = self._refine_step(current, image)
+                out, done = refiner.step(current, image)
                 if done:
-                    self._work = None
+                    refiner.work = None
                     store.put(current, out)
-                self._present(out, current, None, t0)
+                screen.present(out, current, None, t0)
                 shown = want
                 continue
-            if result is None and self._work is not None and self._work.index == current:
-                result = self._work.last_out            # paused mid-refinement: hold it
+            if result is None and refiner.work is not None and refiner.work.index == current:
+                result = refiner.work.last_out          # paused mid-refinement: hold it
             now = time.perf_counter()
             if result is not None and (shown != want or (c.overlay and now - last_overlay > 0.5)):
-                self._present(result, current, None, t0)
+                screen.present(result, current, None, t0)
                 shown, last_overlay = want, now
                 continue
             # Idle: compensate the next slides ahead, one chunk at a time so keys stay live.
             nxt = None if c.paused else next(
                 (i for i in range(current + 1, min(n, current + 1 + self.ahead)) if not store.has(i)), None)
             if nxt is None:
-                self._idle(0.02)
+                screen.idle(0.02)
                 continue
-            out, done = self._refine_step(nxt, src.load(nxt))
+            out, done = refiner.step(nxt, src.load(nxt))
             if done:
-                self._work = None
+                refiner.work = None
                 store.put(nxt, out)
-
 
 
 class _SlideStore:

@@ -239,7 +239,7 @@ def dot_geometry(radius_pred: np.ndarray, dots: np.ndarray) -> tuple[np.ndarray,
 
 
 def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
-                 radius_pred: np.ndarray, *, averages: int, camera_gamma=1.0,
+                 radius_pred: np.ndarray, *, averages: int, camera_lut=1.0,
                  dot_size: int | str = "auto", normalise=None) -> Measurement:
     """Measure the PSF of a dot at each of ``points`` (N, 2) int (steps 3-5).
 
@@ -272,7 +272,7 @@ def measure_psfs(calib: Calibration, capture: Capturer, points: np.ndarray,
         frame = capture.mean(pattern, averages)
         # Sum of the three channels: ~sqrt(3) more signal-to-noise than one, same kernel
         # when the blur is achromatic (the stored F is one field for all channels anyway).
-        img = linearize_camera(frame, camera_gamma).sum(axis=2) if normalise is None else \
+        img = linearize_camera(frame, camera_lut).sum(axis=2) if normalise is None else \
             normalise(frame)
         for i in pat:
             x, y = (int(v) for v in points[i])

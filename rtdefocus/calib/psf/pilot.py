@@ -139,7 +139,7 @@ def _pilot_grid(wp: int, hp: int, spacing: int) -> np.ndarray:
 
 
 def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, dot: int = 3,
-                 camera_gamma=1.0, single_region: bool = False,
+                 camera_lut=1.0, single_region: bool = False,
                  normalise=None) -> RadiusModel:
     """One capture of ``dot``×``dot`` squares every ``spacing`` px → a blur radius model.
 
@@ -172,7 +172,7 @@ def pilot_radius(calib: Calibration, capture: Capturer, *, spacing: int = 100, d
     for x, y in pts:
         pattern[y - o:y - o + dot, x - o:x - o + dot] = 255
     if normalise is None:
-        frame = linearize_camera(capture(pattern), camera_gamma).sum(axis=2)
+        frame = linearize_camera(capture(pattern), camera_lut).sum(axis=2)
     else:
         frame = np.nan_to_num(normalise(capture(pattern)), nan=0.0)
     img, seen = to_projector(calib, frame)

@@ -194,7 +194,7 @@ class PsfRun:
     calib: Calibration
     capture: Capturer
     options: PsfOptions
-    camera_gamma: float | np.ndarray    # the camera's inverse response (linearize_camera)
+    camera_lut: float | np.ndarray    # the camera's inverse response (linearize_camera)
     first_count: int                    # the capturer's psf count before this run
     model: RadiusModel
     blind: RadiusModel | None = None    # one affine fit over the frame (cross-fold baseline)
@@ -208,20 +208,20 @@ class PsfRun:
             check_choice(lay, LAYOUTS, "layout")
         dot_sizes(np.zeros(1), options.dot_size)       # validates
         # The camera's inverse response from the radiometry stage (linear when not measured).
-        camera_gamma = calib.camera_lut if calib.camera_lut is not None else 1.0
+        camera_lut = calib.camera_lut if calib.camera_lut is not None else 1.0
         # + 1: the white frame taken after the dots for the exposure-drift check.
         capture.begin("psf", options.psf_captures + 1)
         n0 = capture.counts.get("psf", 0)
-        norm = frame_normaliser(calib, capture, camera_gamma)
+        norm = frame_normaliser(calib, capture, camera_lut)
         # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
         model = pilot_radius(calib, capture, spacing=options.pilot_spacing,
-                             camera_gamma=camera_gamma, normalise=norm)
+                             camera_lut=camera_lut, normalise=norm)
         blind = None
         if any(cf for _, cf in layouts):
             # What a method unaware of the fold assumes: one plane, so one affine radius.
             blind = RadiusModel(model.points, model.radii)
             blind.fit(0, force_affine=True)
-        return cls(calib, capture, options, camera_gamma, n0, model, blind, norm)
+        return cls(calib, capture, options, camera_lut, n0, model, blind, norm)
 
     def plan(self, key: tuple[str, bool]) -> SamplePlan:
         """The sample plan of ``(layout, cross_fold)`` (step 2)."""
@@ -264,7 +264,7 @@ class PsfRun:
                 urad_a[first], dot_sizes(urad_a[first], o.dot_size))))
             averages = max(2, (o.psf_captures - used) // n_first)
         meas = measure_psfs(calib, capture, upts_a, urad_a, averages=averages,
-                            camera_gamma=self.camera_gamma, dot_size=o.dot_size,
+                            camera_lut=self.camera_lut, dot_size=o.dot_size,
                             normalise=self.normalise)
         log.info("psf: %d dots in %d patterns x %d averages; radius %.2f..%.2f px; snr %.0f..%.0f",
                  len(upts_a), meas.patterns, averages, meas.radius.min(), meas.radius.max(),
@@ -283,7 +283,7 @@ class PsfRun:
         white, black = (self.capture.mean_frame(key, np.full((hp, wp, 3), value, np.uint8),
                                                 self.capture.frame_count(key))
                         for key, value in (("white", 255), ("black", 0)))
-        return check_end_white(self.capture, self.calib, white, black, self.camera_gamma)
+        return check_end_white(self.capture, self.calib, white, black, self.camera_lut)
 
     def fill(self, target: Calibration, key: tuple[str, bool], plan: SamplePlan,
              dots: Dots) -> Calibration:
@@ -413,7 +413,7 @@ def camera_sides(calib: Calibration) -> list[np.ndarray]:
     return [label == p for p in range(calib.n_planes)]
 
 
-def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
+def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     """``f(frame) -> (Hc, Wc) float32``: a dot frame's linear light divided by the white
     frame's above the black one (channels summed), less the background (the black frame over
     the same, smoothed within each wall); NaN where the white frame is not clearly brighter
@@ -433,7 +433,7 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
         n = max(capture.frame_count(key), 2)
         frames.append(linearize_camera(capture.mean_frame(key, np.full((hp, wp, 3), value,
                                                                       np.uint8), n),
-                                       camera_gamma).sum(axis=2))
+                                       camera_lut).sum(axis=2))
     black, white = frames
     span = white - black
     # Divide by the white frame's own light, except where the blur makes it fall off (the
@@ -464,7 +464,7 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
     bg = bg.astype(np.float32)
 
     def normalise(frame: np.ndarray) -> np.ndarray:
-        return linearize_camera(frame, camera_gamma).sum(axis=2) * inv - bg
+        return linearize_camera(frame, camera_lut).sum(axis=2) * inv - bg
 
     return normalise
 

@@ -100,13 +100,13 @@ SATURATED = 250.0
 
 
 # --------------------------------------------------------------------------- helpers
-def linearize_camera(codes: np.ndarray, camera_gamma: float | np.ndarray | None = 1.0) -> np.ndarray:
+def linearize_camera(codes: np.ndarray, camera_lut: float | np.ndarray | None = 1.0) -> np.ndarray:
     """Camera code values (0..255, any float/uint8 array) -> camera-linear light in [0, 1].
 
-    ``camera_gamma``: 1 (or None) is a linear camera; a number ``(code / 255) ** camera_gamma``;
-    a (3, 256) inverse-response table (``calib.camera_lut``) is interpolated per channel.
+    ``camera_lut``: a (3, 256) inverse-response table (``calib.camera_lut``), interpolated per
+    channel; 1 (or None) is a linear camera; a number n the power law ``(code / 255) ** n``.
     """
-    return linearize(codes, camera_gamma)
+    return linearize(codes, camera_lut)
 
 
 def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
@@ -330,7 +330,6 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         kind = "auto"
         capture.begin("radiometry", black_frames + white_frames + n_ramp, done=radiometry_done)
     calib.camera_lut = cam_lut
-    camera_gamma = cam_lut                              # what linearize_camera uses below
     stage_drift = None
     if geometry_white is not None:
         stage_drift = check_drift(geometry_white.astype(np.float32), white_first, black_c,
@@ -344,8 +343,8 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         drift_info = check_drift(white_first, later, black_c, in_view, cam_lut)
 
     maps = projector_to_camera_maps(calib)
-    black_p, seen = to_projector(calib, linearize_camera(black_c, camera_gamma), maps)
-    white_p, _ = to_projector(calib, linearize_camera(white_c, camera_gamma), maps)
+    black_p, seen = to_projector(calib, linearize_camera(black_c, cam_lut), maps)
+    white_p, _ = to_projector(calib, linearize_camera(white_c, cam_lut), maps)
     sat_p, _ = to_projector(calib, (white_c >= SATURATED).astype(np.float32), maps)
     signal = white_p - black_p
     # Pixels the projector visibly lights: white clearly above black in every channel.
@@ -371,14 +370,14 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     support = np.zeros(levels.size, dtype=int)
     if ramp_layout == "patches":
         cells = ramp_cells
-        ramp_p, _ = to_projector(calib, linearize_camera(ramp_c, camera_gamma), maps)
+        ramp_p, _ = to_projector(calib, linearize_camera(ramp_c, cam_lut), maps)
         frames = [ramp_p] * len(levels)
     else:
         cells = np.tile([0, 0, wp, hp], (len(levels), 1))
         frames = []
         for v in levels:
             frames.append(to_projector(calib, linearize_camera(
-                capture(np.full((hp, wp, 3), v, np.uint8)), camera_gamma), maps)[0])
+                capture(np.full((hp, wp, 3), v, np.uint8)), cam_lut), maps)[0])
     for i, (x0, y0, x1, y1) in enumerate(cells):
         # Stay clear of the patch borders by more than any plausible blur (the PSF stage
         # has not measured it yet): a quarter of the patch, at least 12 px.

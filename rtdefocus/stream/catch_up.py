@@ -1,0 +1,127 @@
+"""The live player's catch-up: per frame, compensate it or show it with geometry only.
+
+Realtime playback with the adaptive iteration budget
+(:class:`~rtdefocus.stream.controls.IterationBudget`): where even the budget's minimum does not
+fit, a frame whose compensation, by its measured cost times a safety margin, would end after
+the frame after next has arrived is shown with geometry only. A warp costs a fraction of a
+solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
+screen (on moving content a repeated frame looks far worse than an uncompensated fresh one).
+:class:`CatchUp` holds the decision and the state it learns from (the safety margin, the
+current picture); :class:`~rtdefocus.stream.loop.Player` owns one and asks it per frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from .controls import IterationBudget
+from .sources import Frame
+
+log = logging.getLogger(__name__)
+
+#: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
+#: ends before the frame after next arrives (two periods after it was read); otherwise it is
+#: shown with geometry only. The margin starts at 1 / CATCH_UP_SHARE (1.43): a moving frame's
+#: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
+#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises
+#: the margin by CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after
+#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
+#: while the margin is raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
+#: compensated only where the measured costs say it will be on time, so on a device that
+#: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
+CATCH_UP_SHARE = 0.7
+CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX = 1.25, 4.0
+CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
+#: A still picture (the same frame again: a paused file, a still shot) whose compensation does
+#: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
+#: long as that compensation takes with the safety margin: the frames a settle drops are copies
+#: of the picture unless the picture changes during it, which a still that lasted that long
+#: seldom does. Before it the picture is shown with geometry only, after it as compensated
+#: (refined further only where a refinement fits two periods).
+CATCH_UP_STILL_WAIT = 4
+
+
+class CatchUp:
+    """Decides, frame by frame, what a live player shows to keep up (see the module).
+
+    Parameters
+    ----------
+    budget : IterationBudget
+        The player's adaptive budget: its period and measured costs are what the decisions
+        rest on.
+    """
+
+    def __init__(self, budget: IterationBudget):
+        self.budget = budget
+        self.margin = 1.0 / CATCH_UP_SHARE   # the safety margin on costs
+        self._calm = CATCH_UP_CALM           # ... moving frames before it steps back
+        self._calm_left = CATCH_UP_CALM
+        self._still_since = 0                # index of the current picture's first frame
+        self._settled = False                # ... and whether it was settled
+
+    def new_picture(self, index: int) -> None:
+        """Frame ``index`` shows a picture other than the frame before it."""
+        self._still_since, self._settled = index, False
+
+    def decide(self, frame: Frame, iterations: int, still: bool, repeat: bool,
+               can_reshow: bool) -> tuple[str, int | None]:
+        """What to show for ``frame``, as ``(action, n)``.
+
+        ``("compensate", n)`` with the iterations n (at most ``iterations``) whose expected
+        cost, times the safety margin, lets ``frame`` end before the frame after next arrives
+        (one period after the next one), or n = 0 where no iteration fits but the start alone
+        does (the previous correction carried along the motion: never farther from the target
+        than geometry only). Where nothing fits: ``("geometry", None)`` (the next frame would be
+        dropped and this one shown late: geometry only keeps up instead); for a picture that
+        did not change since the frame before (``still``; a still, a paused video file):
+        ``("reshow", None)`` once it is compensated (``repeat`` and ``can_reshow``: its last
+        output again, at no cost); before that, once, ``("settle", n)`` (compensate, though it
+        may end late) where the picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long
+        as that takes, else ``("geometry", None)``. Without measured costs:
+        ``("compensate", iterations)``."""
+        b = self.budget
+        rest = b.frame_seconds(0, repeat, deadline=True)
+        if rest is None:
+            return "compensate", iterations
+        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - self.margin * rest
+        per_it = self.margin * b.per_iteration
+        fit = int(left / per_it) if per_it > 0 else iterations
+        if fit >= b.minimum:
+            return "compensate", min(iterations, fit)
+        if still:
+            if repeat and can_reshow:
+                return "reshow", None
+            # One settle per picture: one that has lasted CATCH_UP_STILL_WAIT times as long as
+            # its compensation takes seldom ends during it (a late frame drops copies of it).
+            lasted = (frame.index - self._still_since) * b.period
+            room = lasted / (CATCH_UP_STILL_WAIT * self.margin) - rest
+            n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
+            if not self._settled and n >= b.minimum:
+                self._settled = True
+                return "settle", min(iterations, n)
+            return "geometry", None
+        if left >= 0:
+            return "compensate", 0
+        return "geometry", None
+
+    def judge(self, frame: Frame, compensated: bool) -> None:
+        """After a moving frame: a compensated one that ended after the frame after next
+        arrived raises the safety margin; moving frames without a late one step it back (see
+        :data:`CATCH_UP_SHARE`)."""
+        base = 1.0 / CATCH_UP_SHARE
+        if compensated and time.perf_counter() - frame.t_read > 2.0 * self.budget.period:
+            if self.margin > base:           # late again before the margin was back
+                self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
+            self.margin = min(self.margin * CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX)
+            self._calm_left = self._calm
+            log.debug("catch-up: frame %d ended late; safety margin %.2f", frame.index,
+                      self.margin)
+            return
+        if self.margin <= base:
+            self._calm = self._calm_left = CATCH_UP_CALM
+            return
+        self._calm_left -= 1
+        if self._calm_left <= 0:
+            self.margin = max(base, self.margin / CATCH_UP_MARGIN_STEP)
+            self._calm_left = self._calm
