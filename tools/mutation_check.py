@@ -175,7 +175,7 @@ MUTATIONS = [
              "        if False:\n            s.start_from_target()\n",
              ("tests/test_motion.py::test_a_cut_restarts_from_the_target",),
              "a cut is treated as motion: the previous shot's correction is carried"),
-    Mutation("catch-up-never", "catch-up", "rtdefocus/stream/loop.py",
+    Mutation("catch-up-never", "catch-up", "rtdefocus/stream/catch_up.py",
              "        if fit >= b.minimum:\n            return \"compensate\", min(iterations, fit)\n",
              "        if True:\n            return \"compensate\", min(iterations, max(fit, b.minimum))\n",
              ("tests/test_stream.py::test_a_slow_device_keeps_up_with_geometry_only_frames",),
