@@ -17,13 +17,14 @@ from rtdefocus.watch import predict_proj, residual_report
 SIZES = {"projector_size": (320, 240), "camera_size": (480, 360)}
 
 
-def setup(preset):
+def setup(preset, detail_px=3.0):
     """A set-up, its oracle calibration (with the camera's true response) and a frame of
-    smooth, aperiodic content."""
+    smooth, aperiodic content (Gaussian-smoothed noise of σ ``detail_px``)."""
     pc = sim.VirtualProCam(preset, **SIZES)
     calib = sim.oracle_calibration(pc)
     calib.camera_lut = np.tile(pc.truth.camera_response, (3, 1)).astype(np.float32)
-    img = cv2.GaussianBlur(np.random.default_rng(0).random((240, 320)).astype(np.float32), (0, 0), 3)
+    img = cv2.GaussianBlur(np.random.default_rng(0).random((240, 320)).astype(np.float32), (0, 0),
+                           detail_px)
     img = (img - img.min()) / (img.max() - img.min())
     frame = np.repeat((40 + 180 * img)[..., None], 3, axis=2).astype(np.uint8)
     return pc, calib, frame
@@ -97,3 +98,26 @@ def test_prediction_is_the_forward_model_and_bad_inputs_are_refused():
         residual_report(calib, frame[:100], pc.capture(frame))
     with pytest.raises(InputError, match="capture"):
         residual_report(calib, frame, pc.capture(frame)[:, :100])
+
+
+def test_blur_growth_lowers_the_band_ratio_and_light_does_not():
+    # Fine detail: the band the blur change takes away must be in the content.
+    pc, calib, frame = setup("webcam_cubicle", detail_px=1.5)
+    base = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    pc.set_light(ambient=pc.ambient + 0.1)
+    lit = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    pc.refocus(1.15)
+    blurred = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    assert lit == pytest.approx(base, rel=0.01)
+    assert blurred < 0.97 * base, (base, blurred)
+
+
+@pytest.mark.parametrize("preset", ["cubicle", "webcam_cubicle"])
+def test_camera_shift_is_measured_per_plane(preset):
+    pc, calib, frame = setup(preset)
+    pc.bump(camera_shift_px=(4.0, 0.0))
+    r = residual_report(calib, frame, pc.capture(frame))
+    for p in range(calib.n_planes):
+        expect = true_motion(calib, pc, p)
+        assert np.linalg.norm(expect) > 2.5            # 4 camera px are ~3 projector px here
+        np.testing.assert_allclose(r.shifts_proj[p], expect, atol=0.35)

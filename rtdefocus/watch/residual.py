@@ -10,7 +10,11 @@ homographies and lens, is compared with it there:
   gain and offset, inside the plane away from its folds and the frame's edge;
 * light: ``observed ≈ gain · predicted + added · shape`` by least squares on the aligned
   prediction, ``shape`` the calibrated ambient map normalised to mean 1 (uniform when the
-  calibration saw no ambient), so ``added`` is the mean camera light the room added.
+  calibration saw no ambient), so ``added`` is the mean camera light the room added;
+* focus: the band-pass energy (difference of Gaussians) of the observation against that of
+  the prediction. The resampling into projector pixels smooths the observation, so the ratio
+  is below 1 on an unchanged set-up: a change in blur shows as a change of the ratio against
+  its value while the calibration was known to be right.
 """
 
 from __future__ import annotations
@@ -40,6 +44,8 @@ class ResidualReport:
     shifts_proj : (n_planes, 2) float64, (dx, dy) projector px by which the content seen on
         each plane moved against the prediction (NaN where the plane had too few pixels).
     confidence : (n_planes,) float64, phase correlation peak (0..1); small on plain content.
+    band_ratio : band-pass (DoG, σ = 1 and 2 projector px) RMS of the observation over that of
+        the prediction, on the watched pixels; it falls when the blur grows.
     rms_before, rms_after : RMS of observed − predicted before, and after, the alignment and
         the light fit (camera-linear light).
     watched : number of projector pixels compared.
@@ -49,6 +55,7 @@ class ResidualReport:
     ambient_added: float
     shifts_proj: np.ndarray
     confidence: np.ndarray
+    band_ratio: float
     rms_before: float
     rms_after: float
     watched: int
@@ -207,4 +214,15 @@ def residual_report(calib: Calibration, frame: np.ndarray, capture: np.ndarray,
     rms_before = float(np.sqrt(np.mean((y - pred_g[watched]) ** 2)))
     rms_after = float(np.sqrt(np.mean((y - A @ [gain, added]) ** 2)))
     return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
-                          confidence=conf, rms_before=rms_before, rms_after=rms_after, watched=n)
+                          confidence=conf, band_ratio=_band_ratio(aligned, obs_g, watched),
+                          rms_before=rms_before, rms_after=rms_after, watched=n)
+
+
+def _band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
+    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``."""
+    def band(x):
+        x = np.asarray(x, np.float32)
+        return cv2.GaussianBlur(x, (0, 0), 1.0) - cv2.GaussianBlur(x, (0, 0), 2.0)
+
+    e_pred = float(np.mean(band(pred)[mask] ** 2))
+    return float(np.sqrt(np.mean(band(obs)[mask] ** 2) / e_pred)) if e_pred > 0 else float("nan")
