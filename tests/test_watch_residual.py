@@ -67,7 +67,8 @@ def test_room_light_rise_is_measured(preset):
     assert r.rms_after < 0.2 * r.rms_before
 
 
-@pytest.mark.parametrize("preset", ["cubicle", "webcam_cubicle"])
+# fabric: a printed poster and a weave on the walls, which stay put when the projector moves.
+@pytest.mark.parametrize("preset", ["cubicle", "webcam_cubicle", "fabric"])
 def test_projector_shift_is_measured_per_plane(preset):
     pc, calib, frame = setup(preset)
     pc.bump(projector_shift_px=3.0)
@@ -76,6 +77,7 @@ def test_projector_shift_is_measured_per_plane(preset):
         np.testing.assert_allclose(r.shifts_proj[p], [3.0, 0.0], atol=1.0)
         np.testing.assert_allclose(r.shifts_proj[p], true_motion(calib, pc, p), atol=0.35)
     assert abs(r.ambient_added) < 0.01
+    assert r.gain == pytest.approx(1.0, abs=0.02)
 
 
 def test_projector_turn_is_measured():

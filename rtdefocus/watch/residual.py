@@ -6,8 +6,10 @@ response and ``F`` the calibrated kernel field (DESIGN.md §3). A capture, linea
 the camera's inverse response and resampled into projector pixels through the calibrated
 homographies and lens, is compared with it there:
 
-* geometry: per plane, the content's shift (projector px) by phase correlation, which ignores
-  gain and offset, inside the plane away from its folds and the frame's edge;
+* geometry: per plane, the content's shift (projector px) inside the plane away from its folds
+  and the frame's edge, between the blurred frame ``F P`` and the observation with the room
+  light taken off and divided by the albedo: the wall's printed texture stays where it is
+  when the projector moves, so only the projected content moves;
 * light: ``observed ≈ gain · predicted + added · shape`` by least squares on the aligned
   prediction, ``shape`` the calibrated ambient map normalised to mean 1 (uniform when the
   calibration saw no ambient), so ``added`` is the mean camera light the room added;
@@ -74,6 +76,11 @@ def predict_proj(calib: Calibration, frame: np.ndarray) -> np.ndarray:
     -------
     (Hp, Wp, 3) float32.
     """
+    return _with_light(calib, _blurred(calib, frame))
+
+
+def _blurred(calib: Calibration, frame: np.ndarray) -> np.ndarray:
+    """``F P``: the frame in linear light, blurred by the calibrated kernels, (Hp, Wp, 3)."""
     wp, hp = calib.projector_size
     frame = np.asarray(frame)
     if frame.shape != (hp, wp, 3) or frame.dtype != np.uint8:
@@ -82,7 +89,12 @@ def predict_proj(calib: Calibration, frame: np.ndarray) -> np.ndarray:
     lin = decode_lut(frame, calib.lut)                           # (3, Hp, Wp)
     if calib.has_psf:
         lin = blur_forward_filter2d(lin, calib.psfs, calib.pix_idx, calib.pix_wts)
-    out = np.ascontiguousarray(lin.transpose(1, 2, 0))
+    return np.ascontiguousarray(lin.transpose(1, 2, 0))
+
+
+def _with_light(calib: Calibration, blurred: np.ndarray) -> np.ndarray:
+    """albedo · blurred + ambient, with what the calibration knows of them."""
+    out = blurred.copy()
     if calib.albedo_proj is not None:
         out *= calib.albedo_proj
     if calib.ambient_proj is not None:
@@ -182,22 +194,30 @@ def residual_report(calib: Calibration, frame: np.ndarray, capture: np.ndarray,
     """
     wp, hp = calib.projector_size
     margin = max(8, int(0.04 * min(wp, hp))) if margin is None else int(margin)
-    pred = predict_proj(calib, frame)
+    blurred = _blurred(calib, frame)
+    pred = _with_light(calib, blurred)
     obs, seen = observe_proj(calib, capture)
     masks = _watched_planes(calib, seen, margin)
     pred_g, obs_g = pred.mean(axis=2), obs.mean(axis=2)
+    # The content alone, as the projector put it on the wall.
+    content = obs
+    if calib.ambient_proj is not None:
+        content = content - calib.ambient_proj
+    if calib.albedo_proj is not None:
+        content = content / np.maximum(calib.albedo_proj, 1e-3)
+    content_g, blurred_g = content.mean(axis=2), blurred.mean(axis=2)
     shifts = np.full((calib.n_planes, 2), np.nan)
     conf = np.zeros(calib.n_planes)
     aligned = pred_g.copy()
     for p, mask in enumerate(masks):
         if mask.sum() < min_pixels:
             continue
-        shifts[p], conf[p] = _plane_shift(pred_g, obs_g, mask)
-        # The prediction moved as the content did, for the light fit.
+        shifts[p], conf[p] = _plane_shift(blurred_g, content_g, mask)
+        # The prediction with the content moved as it did, for the light fit.
         M = np.float32([[1, 0, shifts[p][0]], [0, 1, shifts[p][1]]])
-        moved = cv2.warpAffine(pred_g, M, (wp, hp), flags=cv2.INTER_LINEAR,
+        moved = cv2.warpAffine(blurred, M, (wp, hp), flags=cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REPLICATE)
-        aligned[mask] = moved[mask]
+        aligned[mask] = _with_light(calib, moved).mean(axis=2)[mask]
     watched = np.any(masks, axis=0) if masks else np.zeros((hp, wp), bool)
     n = int(watched.sum())
     if n < min_pixels:
