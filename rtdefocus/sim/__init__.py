@@ -13,19 +13,25 @@ Modules, one concept each:
   kernel field rendered on a grid of radii;
 * :mod:`~rtdefocus.sim.virtual_procam` — :class:`VirtualProCam`: irradiance shading, albedo, ambient,
   responses, noise, the camera's view; :func:`capture_seconds`;
+* :mod:`~rtdefocus.sim.changes` — :class:`SetupChanges`: ``bump``, ``set_light``, ``refocus``
+  between two captures, the truth following;
+* :mod:`~rtdefocus.sim.timeline` — :class:`Timeline`: such changes at given times of a clip;
 * :mod:`~rtdefocus.sim.truth` — :class:`GroundTruth`;
 * :mod:`~rtdefocus.sim.oracle` — :func:`oracle_calibration`, a Calibration from the truth;
 * :mod:`~rtdefocus.sim.patterns` — :data:`PATTERNS`, :func:`test_pattern`.
 """
 
+from .changes import SetupChanges
 from .optics import RADIUS_STEP, blend_kernel
 from .oracle import oracle_calibration
 from .patterns import PATTERNS, test_pattern
 from .scene import PRESETS, Scene
+from .timeline import Event, Timeline
 from .truth import GroundTruth
 from .virtual_procam import SHADING_MEAN, WEBCAM, VirtualProCam, capture_seconds
 
 __all__ = [
-    "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "VirtualProCam", "WEBCAM",
+    "Event", "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "SetupChanges",
+    "Timeline", "VirtualProCam", "WEBCAM",
     "blend_kernel", "capture_seconds", "oracle_calibration", "test_pattern",
 ]

@@ -16,6 +16,7 @@ through per-pixel maps found by ray casting once at construction.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -28,6 +29,7 @@ from ..checks import check_choice
 from ..errors import InputError
 from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
+from .changes import SetupChanges
 from .optics import BlurPlan
 from .patterns import test_pattern
 from .scene import (
@@ -78,7 +80,7 @@ def _fabric(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
     return out
 
 
-class VirtualProCam:
+class VirtualProCam(SetupChanges):
     """A virtual projector and camera looking at walls: a two-wall corner, one plane, or a
     room's three planes (a :class:`rtdefocus.ProCam`).
 
@@ -227,8 +229,10 @@ class VirtualProCam:
         self._proj_lut = ((np.arange(256) / 255.0) ** self.projector_gamma).astype(np.float32)
 
         t0 = time.perf_counter()
+        self._proj_center = np.zeros(3)    # world position of the projector (moved by bump())
         self._build_geometry()
         self._build_projector_space()
+        self._place_camera()
         self._build_camera_maps()
         self._build_truth()
         self._blur = BlurPlan(self._pad_radius, self.chromatic, self.aperture)
@@ -250,16 +254,7 @@ class VirtualProCam:
             raise InputError(f"scene of kind {sc.kind!r} needs {len(walls)} albedos; got {len(sc.albedo)}")
 
         # Lens: focus and aperture from the wanted radius range unless the scene fixes them.
-        gx, gy = np.meshgrid(np.linspace(-0.5, wp - 0.5, 65), np.linspace(-0.5, hp - 0.5, 49))
-        depth = self._depths_of(np.stack([gx.ravel(), gy.ravel()]))
-        if self._room:
-            # 1/D is convex and piecewise affine over a room seen from inside: its extremes lie
-            # at the frame corners (on the grid), on the folds or at the vertex.
-            folds = room_folds(walls, self.K_proj, self.R_proj, self.projector_size)
-            fold_depth = [(self.R_proj @ f.points.T)[2] for f in folds]
-            depth = np.concatenate([depth] + fold_depth)
-        d_min, d_max = float(depth.min()), float(depth.max())
-        self._depth_range = (d_min, d_max)
+        self._depth_range = d_min, d_max = self._frame_depth_range()
         r_lo, r_hi = sc.blur_range_px
         fd = sc.focus_distance
         if fd is None:
@@ -270,6 +265,28 @@ class VirtualProCam:
         if a is None:
             a = r_hi / (1.2 * 800 * max(abs(1 / fd - 1 / d_min), abs(1 / fd - 1 / d_max)))
         self.focus_distance, self.aperture_radius = float(fd), float(a)
+
+    def _frame_depth_range(self) -> tuple[float, float]:
+        """Nearest and farthest depth (m, along the projector axis) over the projector frame."""
+        wp, hp = self.projector_size
+        gx, gy = np.meshgrid(np.linspace(-0.5, wp - 0.5, 65), np.linspace(-0.5, hp - 0.5, 49))
+        depth = self._depths_of(np.stack([gx.ravel(), gy.ravel()]))
+        if self._room:
+            # 1/D is convex and piecewise affine over a room seen from inside: its extremes lie
+            # at the frame corners (on the grid), on the folds or at the vertex.
+            fold_depth = [(self.R_proj @ (f.points - self._proj_center).T)[2]
+                          for f in self._room_folds()]
+            depth = np.concatenate([depth] + fold_depth)
+        return float(depth.min()), float(depth.max())
+
+    def _room_folds(self):
+        """:func:`~rtdefocus.sim.scene.room_folds` of the projector where it stands (that
+        function places the projector at the origin), with the fold points in the world."""
+        c = self._proj_center
+        walls = [dataclasses.replace(w, d=float(w.d - w.n @ c), origin=w.origin - c)
+                 for w in self._walls]
+        return [dataclasses.replace(f, points=f.points + c)
+                for f in room_folds(walls, self.K_proj, self.R_proj, self.projector_size)]
 
     def _build_projector_space(self) -> None:
         wp, hp = self.projector_size
@@ -317,8 +334,10 @@ class VirtualProCam:
         (3, N) and projector-frame directions (3, N) with z = 1."""
         dirs_p = np.linalg.inv(self.K_proj) @ np.vstack([pix, np.ones((1, pix.shape[1]))])
         dirs_w = self.R_proj.T @ dirs_p
-        t, wall = cast_rays(np.zeros(3), dirs_w, self._walls)
-        return t, wall, t * dirs_w, dirs_p            # t is the depth along the projector axis
+        c = self._proj_center
+        t, wall = cast_rays(c, dirs_w, self._walls)
+        # t is the depth along the projector axis
+        return t, wall, c[:, None] + t * dirs_w, dirs_p
 
     def _depths_of(self, pix: np.ndarray) -> np.ndarray:
         t, wall, _, _ = self._cast_projector(pix)
@@ -356,7 +375,8 @@ class VirtualProCam:
                 out[:, hit] *= _fabric(s[hit], y[hit], wall[hit])
         return out
 
-    def _build_camera_maps(self) -> None:
+    def _place_camera(self) -> None:
+        """The camera's pose and intrinsics (``_cam_center``, ``R_cam``, ``t_cam``, ``K_cam``)."""
         sc = self.scene
         wc, hc = self.camera_size
         wp, hp = self.projector_size
@@ -392,6 +412,14 @@ class VirtualProCam:
         self.K_cam = np.array([[fc, 0.0, (wc - 1) / 2.0], [0.0, fc, (hc - 1) / 2.0], [0.0, 0.0, 1.0]])
         self.R_cam = R                               # world -> camera
         self.t_cam = -R @ center
+        self._cam_center = center
+
+    def _build_camera_maps(self) -> None:
+        """Ray-cast the camera where it stands: its remap into projector space, albedo, planes."""
+        wc, hc = self.camera_size
+        wp, hp = self.projector_size
+        m = self._margin
+        center, R = self._cam_center, self.R_cam
 
         # Ray-cast every camera pixel to the walls, then to projector pixel coordinates.
         gx, gy = np.meshgrid(np.arange(wc, dtype=np.float64), np.arange(hc, dtype=np.float64))
@@ -405,11 +433,12 @@ class VirtualProCam:
         hit = wall >= 0
         t = np.where(hit, t, 1.0)
         pts = center[:, None] + t * dirs_w
-        xp = self.K_proj @ (self.R_proj @ pts)
+        c = self._proj_center
+        xp = self.K_proj @ (self.R_proj @ (pts - c[:, None]))
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = xp[0] / xp[2], xp[1] / xp[2]
         # Shadow test: the projector's own ray must reach this very point first (t = 1).
-        tp, _ = cast_rays(np.zeros(3), pts, self._walls)
+        tp, _ = cast_rays(c, pts - c[:, None], self._walls)
         lit = hit & (xp[2] > 0) & (np.abs(tp - 1.0) < 1e-6)
         inside = lit & (u >= -m) & (u <= wp - 1 + m) & (v >= -m) & (v <= hp - 1 + m)
         self._map_x = np.where(inside, u + m, _OUTSIDE).reshape(hc, wc).astype(np.float32)
@@ -429,13 +458,15 @@ class VirtualProCam:
         m = self._margin
         fr = (slice(m, m + hp), slice(m, m + wp))
         R_cp = self.R_cam @ self.R_proj.T
-        t_cp = self.t_cam.copy()                     # projector centre is the world origin
+        c = self._proj_center                        # X_world = R_proj^T X_proj + c
+        t_cp = self.t_cam + self.R_cam @ c
         planes, hs = [], []
         Kp_inv = np.linalg.inv(self.K_proj)
         for w in self._walls:
             n_p = self.R_proj @ w.n
-            planes.append(np.concatenate([n_p, [w.d]]))
-            H = self.K_cam @ (R_cp + np.outer(t_cp, n_p) / w.d) @ Kp_inv
+            d_p = float(w.d - w.n @ c)
+            planes.append(np.concatenate([n_p, [d_p]]))
+            H = self.K_cam @ (R_cp + np.outer(t_cp, n_p) / d_p) @ Kp_inv
             hs.append(H / H[2, 2])
         fold_proj, fold_cam, folds_proj, folds_cam, fold_planes = self._folds()
         shade = self._pad_shade[fr]
@@ -469,7 +500,7 @@ class VirtualProCam:
         folds_proj, folds_cam (m, 3), fold_planes (m, 2): every fold inside the frame,
         canonically oriented, [plane on the negative side, plane on the positive side]."""
         def proj(X):
-            x = self.K_proj @ (self.R_proj @ X)
+            x = self.K_proj @ (self.R_proj @ (X - self._proj_center))
             return x[:2] / x[2]
 
         def cam(X):
@@ -479,7 +510,7 @@ class VirtualProCam:
         fold_proj = fold_cam = None
         folds = []                                    # (line_proj, line_cam, [neg, pos])
         if self._room:
-            for f in room_folds(self._walls, self.K_proj, self.R_proj, self.projector_size):
+            for f in self._room_folds():
                 xa, xb = f.points[0], f.points[-1]
                 xi = 0.5 * (xa + xb) + 0.01 * f.side_i    # 1 cm into wall i
                 folds.append((line_through(proj(xa), proj(xb), proj(xi)),
