@@ -9,8 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from rtdefocus.calib.planar import distort_points, distortion_scale, undistort_points
-from rtdefocus.calib.structured_light import LinePatterns, decode_gray
+from rtdefocus.calib.geometry.structured_light import LinePatterns
+from rtdefocus.graycode import decode_gray
+from rtdefocus.planar import distort_points, distortion_scale, undistort_points
 from rtdefocus.reference.metric import M_RGB_TO_YCBCR, rgb_to_ycbcr
 
 

@@ -114,7 +114,7 @@ def section_webcam() -> None:
     import test_webcam as tw
     from setup_figures import figures
 
-    from rtdefocus.samples import photographs
+    from rtdefocus.study.samples import photographs
 
     pc, calib = tw._webcam_calibration()
     photos = photographs()

@@ -44,11 +44,11 @@ from .scene import (
     rot_z,
     scene_walls,
 )
+from .texture import TEXTURES, wall_albedo
 from .truth import GroundTruth
 
 log = logging.getLogger(__name__)
 
-TEXTURES = ("none", "faint", "fabric")
 SHADING_MEAN = 0.85         # mean relative irradiance over the projector frame
 _OUTSIDE = -1.0e5           # remap coordinate of camera pixels that see no projector light
 
@@ -59,25 +59,6 @@ WEBCAM = {"camera_response": "srgb", "projector_gamma": 2.2, "ambient": 0.05, "t
 _DEFAULTS = {"camera_response": "gamma", "projector_gamma": 1.0, "ambient": None,
              "texture": None, "noise": 0.006, "aperture": "disc", "chromatic": (1.0, 1.0, 1.0),
              "distortion": (0.0, 0.0)}
-
-
-def _fabric(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
-    """The "fabric" texture's albedo factor (3, N) at wall coordinates ``s`` (m along the wall
-    from the fold), ``y`` (m, down; 0 at the projector's centre row) on ``wall`` (0 left, 1 right)."""
-    out = np.ones((3, s.size))
-    w0, w1 = wall == 0, wall == 1
-    # Left: a woven partition, ±8 % in a 3 cm basket weave.
-    weave = 1.0 + 0.08 * np.sin(2 * math.pi * s / 0.03) * np.sin(2 * math.pi * y / 0.03)
-    out[:, w0] *= weave[w0]
-    # Right: soft wood-grain-like bands (±6 %, 9 cm, slightly wavy) ...
-    grain = 1.0 + 0.06 * np.sin(2 * math.pi * (y + 0.02 * np.sin(2 * math.pi * s / 0.4)) / 0.09)
-    out[:, w1] *= grain[w1]
-    # ... and a printed poster, coloured diagonal stripes (albedo × 0.45..1.0 per channel).
-    poster = w1 & (s > 0.30) & (s < 0.80) & (y > -0.40) & (y < 0.10)
-    ph = 2 * math.pi * (s / 0.16 + y / 0.23)
-    for c, off in enumerate((0.0, 2.1, 4.2)):
-        out[c, poster] *= 0.725 + 0.275 * np.cos(ph[poster] + off)
-    return out
 
 
 class VirtualProCam(SetupChanges):
@@ -352,28 +333,9 @@ class VirtualProCam(SetupChanges):
 
     def _albedo(self, pts_w: np.ndarray, wall: np.ndarray) -> np.ndarray:
         """RGB albedo (3, N) of world points (3, N) on the given walls (0 where wall = -1)."""
-        base = np.asarray(self.scene.albedo, dtype=np.float64)
-        out = np.zeros((3, wall.size))
-        hit = wall >= 0
-        out[:, hit] = base[wall[hit]].T
-        if self.texture_amplitude > 0 and hit.any():
-            s, y = np.zeros(wall.size), pts_w[1].copy()
-            for i, w in enumerate(self._walls):
-                sel = wall == i
-                if w.tex is not None:       # a room's wall or ceiling: its own two axes
-                    s[sel], y[sel] = w.tex @ (pts_w[:, sel] - w.origin[:, None])
-                    continue
-                e = w.e if w.e is not None else np.cross([0.0, 1.0, 0.0], w.n)
-                s[sel] = e @ (pts_w[:, sel] - w.origin[:, None])
-            ph = self._tex_phase
-            # Faint (±texture) smooth pattern fixed to the wall, in metres along it.
-            tex = 1.0 + 0.5 * self.texture_amplitude * (np.sin(2 * math.pi * s / 0.37 + ph[0, 0])
-                                * np.sin(2 * math.pi * y / 0.29 + ph[0, 1])
-                                + np.sin(2 * math.pi * (s + y) / 0.61 + ph[0, 2]))
-            out[:, hit] *= tex[hit]
-            if self.texture == "fabric":
-                out[:, hit] *= _fabric(s[hit], y[hit], wall[hit])
-        return out
+        return wall_albedo(self.scene.albedo, self._walls, pts_w, wall,
+                           amplitude=self.texture_amplitude, texture=self.texture,
+                           phase=self._tex_phase)
 
     def _place_camera(self) -> None:
         """The camera's pose and intrinsics (``_cam_center``, ``R_cam``, ``t_cam``, ``K_cam``)."""
