@@ -9,7 +9,7 @@ The displacement of plane p is a uniform cubic B-spline over the projector frame
 
 with the spans spread evenly over pixel centres 0 .. W-1 (and 0 .. H-1), clamped outside.
 It is C² (no kink a checkerboard row would show), linear in ``ctrl`` (a least-squares fit), and
-few numbers (a 7 × 5 grid: 70 per plane). This module is a leaf: NumPy only.
+few numbers (a 9 × 7 grid: 126 per plane). This module is a leaf: NumPy only.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ __all__ = ["DEFAULT_GRID", "basis", "displacement", "dense_displacement", "fit_r
            "check_residual"]
 
 #: Control points (gx, gy) of a plane's residual over the frame (>= 4 each).
-DEFAULT_GRID = (7, 5)
+DEFAULT_GRID = (9, 7)
 
 
 def basis(coord: np.ndarray, n_px: int, n_ctrl: int) -> np.ndarray:
@@ -72,7 +72,7 @@ def dense_displacement(ctrl: np.ndarray, labels: np.ndarray,
 
 def fit_residual(pts_proj_xy: np.ndarray, resid_cam_xy: np.ndarray,
                  projector_size: tuple[int, int], grid: tuple[int, int] = DEFAULT_GRID,
-                 smooth: float = 1.0) -> np.ndarray:
+                 smooth: float = 0.01) -> np.ndarray:
     """Least-squares control points (gy, gx, 2) of one plane's field through residuals.
 
     Parameters
