@@ -241,5 +241,5 @@ def test_plane_geometry_is_a_leaf():
     graph = import_graph()
     assert graph["rtdefocus.planar"] <= {"rtdefocus.errors"}, graph["rtdefocus.planar"]
     for user in ("rtdefocus.calib.file", "rtdefocus.gl.warp", "rtdefocus.reference.warp",
-                 "rtdefocus.calib.psf.layout"):
+                 "rtdefocus.calib.psf.sampling"):
         assert "rtdefocus.planar" in graph[user], user

@@ -298,8 +298,8 @@ BAD = {
     "zeros": (np.zeros((1, 3, 3)), None, RECT, "singular"),
     "three-planes-one-fold": (np.stack([H2[0]] * 3), FOLD, RECT, "PlaneLayout"),
     "nine-planes": (np.stack([np.eye(3)] * 9), None, RECT, r"n = 1 \.\. 8"),
-    "no-fold": (H2, None, RECT, "fold_proj"),
-    "zero-fold": (H2, np.zeros(3), RECT, "fold_proj"),
+    "no-fold": (H2, None, RECT, "planes"),
+    "zero-fold": (H2, np.zeros(3), RECT, "planes"),
     "empty-rect": (H2, FOLD, (0, 0, 0, 10), "rect"),
     "nan-rect": (H2, FOLD, (0, np.nan, 10, 10), "rect"),
 }

@@ -13,7 +13,7 @@ import pytest
 import rtdefocus as rd
 from rtdefocus import sim
 from rtdefocus.calib.file import Calibration
-from rtdefocus.calib.psf.layout import SamplePlan
+from rtdefocus.calib.psf.sampling import SamplePlan
 from rtdefocus.calib.psf.stage import fill_skipped
 from rtdefocus.calib.radiometry.camera_response import (
     fit_inverse_response,

@@ -43,6 +43,8 @@ class Capturer:
         self.stage = "capture"
         self._done = 0
         self._total = 0
+        # key -> (n, mean of n captures): what one stage averaged, a later one reuses.
+        self._frames: dict[str, tuple[int, np.ndarray]] = {}
 
     @property
     def total(self) -> int:
@@ -98,3 +100,22 @@ class Capturer:
         for _ in range(n):
             acc += self(pattern)
         return (acc / n).astype(np.float32)
+
+    def mean_frame(self, key: str, pattern: np.ndarray, n: int) -> np.ndarray:
+        """Average of ``n`` captures of ``pattern``, kept under ``key`` for this calibration run.
+
+        A later call with the same ``key`` reuses the captures already taken and only adds the
+        missing ones. Returns float32 camera codes (Hc, Wc, 3).
+        """
+        have_n, have = self._frames.get(key, (0, None))
+        if have_n >= n:
+            return have
+        extra = self.mean(pattern, n - have_n)
+        mean = extra if have is None else (have * have_n + extra * (n - have_n)) / n
+        mean = mean.astype(np.float32)
+        self._frames[key] = (n, mean)
+        return mean
+
+    def frame_count(self, key: str) -> int:
+        """How many captures the kept mean ``key`` holds (0 if none)."""
+        return self._frames.get(key, (0, None))[0]

@@ -137,8 +137,7 @@ class Compensator:
         _check_args(calib, method=method, solver=solver, backend=backend,
                     iterations=iterations, tol=tol, weights=weights, warp_backend=warp_backend,
                     wiener_nsr=wiener_nsr, blur_variant=blur_variant)
-        if surface not in SURFACES:
-            raise InputError(f"surface must be one of {SURFACES}; got {surface!r}")
+        check_choice(surface, SURFACES, "surface")
         check_adjoint(adjoint)
         check_precondition(precondition)
         self.adjoint = adjoint

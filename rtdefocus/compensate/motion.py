@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..checks import check_choice
 from ..errors import InputError
 
 __all__ = ["Motion", "MotionEstimator"]
@@ -91,8 +92,7 @@ class MotionEstimator:
         presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
                    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
-        if flow_preset not in presets:
-            raise InputError(f"flow_preset must be one of {sorted(presets)}; got {flow_preset!r}")
+        check_choice(flow_preset, tuple(sorted(presets)), "flow_preset")
         self.flow_width = int(flow_width)
         self.error_threshold = float(error_threshold)
         self.cut_fraction = float(cut_fraction)

@@ -13,6 +13,7 @@ import logging
 
 import numpy as np
 
+from ..checks import check_choice
 from ..errors import DeviceError, InputError, InputTypeError
 from ..planar import MAX_PLANES
 from ..reference.warp import (
@@ -103,8 +104,8 @@ class GLWarp:
         self._levels_wanted = 1
 
     # ------------------------------------------------------------------ state
-    def _configure(self, H_cam_from_proj, fold_proj, rect, input_size, offset=None) -> None:
-        H, layout, r, psize = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
+    def _configure(self, H_cam_from_proj, planes, rect, input_size, offset=None) -> None:
+        H, layout, r, psize = check_warp_inputs(H_cam_from_proj, planes, rect,
                                                 self.projector_size)
         offset = check_offset(offset, psize)
         M = np.zeros((MAX_PLANES, 3, 3))
@@ -145,7 +146,7 @@ class GLWarp:
             self.texture.write(data, level=level, alignment=1)
 
     # ------------------------------------------------------------------ drawing
-    def render_to(self, target, image: np.ndarray, H_cam_from_proj, fold_proj, rect,
+    def render_to(self, target, image: np.ndarray, H_cam_from_proj, planes, rect,
                   offset=None) -> None:
         """Draw the warped ``image`` into ``target`` (a moderngl framebuffer of the projector's
         size, e.g. ``ctx.screen`` of a full-screen projector window). Arguments as :meth:`render`."""
@@ -156,12 +157,12 @@ class GLWarp:
                              f"{self.projector_size[0]}x{self.projector_size[1]} projector frames; "
                              "make the window/framebuffer the projector's size")
         input_size = (img.shape[1], img.shape[0])
-        key = (np.asarray(H_cam_from_proj, dtype=np.float64).tobytes(), _planes_key(fold_proj),
+        key = (np.asarray(H_cam_from_proj, dtype=np.float64).tobytes(), _planes_key(planes),
                tuple(float(v) for v in np.asarray(rect, dtype=np.float64).reshape(-1)), input_size,
                _offset_key(offset))
         if key != self._key:
             self._key = None          # stays unset if the new geometry is rejected
-            self._configure(H_cam_from_proj, fold_proj, rect, input_size, offset)
+            self._configure(H_cam_from_proj, planes, rect, input_size, offset)
             self._key = key
         self._upload(img)
         target.use()
@@ -173,7 +174,7 @@ class GLWarp:
         self.vao.render(mode=self.ctx.TRIANGLES, vertices=3)
         self.sampler.clear(0)
 
-    def render(self, image: np.ndarray, H_cam_from_proj, fold_proj, rect,
+    def render(self, image: np.ndarray, H_cam_from_proj, planes, rect,
                offset=None) -> np.ndarray:
         """Warp ``image`` into projector space offscreen.
 
@@ -183,7 +184,7 @@ class GLWarp:
             RGB input, any size.
         H_cam_from_proj : (n, 3, 3) float64
             Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
-        fold_proj : PlaneLayout, (3,) float64 or None
+        planes : PlaneLayout, (3,) float64 or None
             The planes (``calib.layout``); for two planes also their fold line
             ``a x + b y + c = 0`` in projector pixels, plane 0 where negative (ignored when
             n = 1).
@@ -201,7 +202,7 @@ class GLWarp:
         if self.fbo is None:
             self.fbo = self.ctx.framebuffer(
                 color_attachments=[self.ctx.renderbuffer(self.projector_size, components=4)])
-        self.render_to(self.fbo, image, H_cam_from_proj, fold_proj, rect, offset)
+        self.render_to(self.fbo, image, H_cam_from_proj, planes, rect, offset)
         return read_rgb(self.fbo, self.projector_size)
 
     def release(self) -> None:
@@ -277,8 +278,7 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
         raise InputTypeError(f"warp_image needs an rtdefocus Calibration first; got "
                              f"{type(calib).__name__} (no {', '.join(missing)}). Make one with "
                              "rd.calibrate(procam) or rd.Calibration.load('setup.npz')")
-    if backend not in ("auto", "gl", "cv2"):
-        raise InputError(f"backend must be 'auto', 'gl' or 'cv2'; got {backend!r}")
+    check_choice(backend, ("auto", "gl", "cv2"), "backend")
     img = check_image(image)
     if rect is None:
         rect = calib.display_rect((img.shape[1], img.shape[0]))

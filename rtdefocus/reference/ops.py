@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks import check_choice
 from ..errors import InputError
 from .blur import (
     blur_adjoint,
@@ -37,8 +38,7 @@ ADJOINTS = ("exact", "fast")
 
 def check_adjoint(adjoint: str) -> None:
     """Raise :class:`InputError` unless ``adjoint`` is one of :data:`ADJOINTS`."""
-    if adjoint not in ADJOINTS:
-        raise InputError(f"adjoint must be one of {ADJOINTS}; got {adjoint!r}")
+    check_choice(adjoint, ADJOINTS, "adjoint")
 
 
 def _vdot(a: np.ndarray, b: np.ndarray) -> float:
@@ -216,8 +216,7 @@ class NumpyOps:
     def __init__(self, psfs, idx, wts, metric: Metric, blur: str = "gather", scale=None,
                  adjoint: str = "exact"):
         self.psfs, self.idx, self.wts = check_field(psfs, idx, wts)
-        if blur not in ("gather", "filter2d"):
-            raise InputError(f"blur must be 'gather' or 'filter2d'; got {blur!r}")
+        check_choice(blur, ("gather", "filter2d"), "blur")
         check_adjoint(adjoint)
         self.adjoint_form = adjoint
         self._psfs_flipped = np.ascontiguousarray(self.psfs[:, ::-1, ::-1])

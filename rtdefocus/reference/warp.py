@@ -43,14 +43,14 @@ __all__ = ["check_image", "check_offset", "check_warp_inputs", "mip_levels_neede
            "warp_lod", "warp_maps"]
 
 
-def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
+def check_warp_inputs(H_cam_from_proj, planes, rect, projector_size):
     """Validate and normalise the geometry of a warp; raise :class:`InputError` naming the fix.
 
     Parameters
     ----------
     H_cam_from_proj : array_like, (n, 3, 3) or (3, 3)
         Per-plane homographies, projector pixel -> camera pixel; n is 1 .. MAX_PLANES.
-    fold_proj : PlaneLayout, array_like (3,) or None
+    planes : PlaneLayout, array_like (3,) or None
         The planes in projector pixels: a :class:`~rtdefocus.planar.PlaneLayout`
         (``calib.layout``), or for two planes their fold line ``a x + b y + c = 0``, plane 0
         where negative. Ignored (may be None or zeros) when n = 1.
@@ -103,9 +103,9 @@ def check_warp_inputs(H_cam_from_proj, fold_proj, rect, projector_size):
                              f"({Hp_.tolist()}); recalibrate the geometry")
         out[p] = Hn if z > 0 else -Hn
     try:
-        layout = PlaneLayout.coerce(fold_proj, out.shape[0])
+        layout = PlaneLayout.coerce(planes, out.shape[0])
     except InputError as exc:
-        raise InputError(f"fold_proj: {exc}") from None
+        raise InputError(f"planes: {exc}") from None
     r = np.asarray(rect, dtype=np.float64).reshape(-1)
     if r.shape != (4,) or not np.isfinite(r).all() or r[2] <= 0 or r[3] <= 0:
         raise InputError(f"rect must be (x, y, w, h) in camera pixels with w, h > 0; got {rect!r}")
@@ -151,11 +151,11 @@ def check_offset(offset, projector_size) -> np.ndarray | None:
     return off.astype(np.float32, copy=False)
 
 
-def _geometry(H_cam_from_proj, fold_proj, rect, input_size, projector_size, step=1, offset=None):
+def _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step=1, offset=None):
     """Per projector pixel: u, v (input px), z (homogeneous coordinate) and lod, all float64.
     With ``step`` > 1 only every step-th row and column (and the last ones) are evaluated.
     ``offset`` (Hp, Wp, 2) camera px is added to each pixel's camera point (not to the lod)."""
-    H, layout, (x0, y0, w, h), (wp, hp) = check_warp_inputs(H_cam_from_proj, fold_proj, rect,
+    H, layout, (x0, y0, w, h), (wp, hp) = check_warp_inputs(H_cam_from_proj, planes, rect,
                                                             projector_size)
     W, Hh = (int(v) for v in input_size)
     cols = np.unique(np.r_[np.arange(0, wp, step), wp - 1]).astype(np.float64)
@@ -187,14 +187,14 @@ def _geometry(H_cam_from_proj, fold_proj, rect, input_size, projector_size, step
     return u, v, Z, lod
 
 
-def warp_maps(H_cam_from_proj, fold_proj, rect, input_size, projector_size, offset=None):
+def warp_maps(H_cam_from_proj, planes, rect, input_size, projector_size, offset=None):
     """Where each projector pixel samples the input.
 
     Parameters
     ----------
     H_cam_from_proj : (n, 3, 3) float64
         Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
-    fold_proj : PlaneLayout, (3,) float64 or None
+    planes : PlaneLayout, (3,) float64 or None
         The planes (``calib.layout``; for two planes also their fold line, plane 0 where
         negative; ignored for n = 1).
     rect : (x0, y0, w, h)
@@ -217,7 +217,7 @@ def warp_maps(H_cam_from_proj, fold_proj, rect, input_size, projector_size, offs
         Outside it the warp is black, except for the one-input-pixel fade of the bilinear
         border (``BORDER_CONSTANT``).
     """
-    u, v, z, _ = _geometry(H_cam_from_proj, fold_proj, rect, input_size, projector_size,
+    u, v, z, _ = _geometry(H_cam_from_proj, planes, rect, input_size, projector_size,
                            offset=offset)
     W, Hh = input_size
     ok = (z > 0) & np.isfinite(u) & np.isfinite(v)
@@ -228,11 +228,11 @@ def warp_maps(H_cam_from_proj, fold_proj, rect, input_size, projector_size, offs
     return map_x, map_y, valid
 
 
-def warp_lod(H_cam_from_proj, fold_proj, rect, input_size, projector_size, step=1) -> np.ndarray:
+def warp_lod(H_cam_from_proj, planes, rect, input_size, projector_size, step=1) -> np.ndarray:
     """(Hp, Wp) float64 level of detail of each projector pixel (see the module docstring):
     > 0 where the input is minified; NaN where the pixel maps to no camera point. ``step`` > 1
     evaluates every step-th row and column only (plus the last), for a quick maximum."""
-    _, _, z, lod = _geometry(H_cam_from_proj, fold_proj, rect, input_size, projector_size, step)
+    _, _, z, lod = _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step)
     return np.where((z > 0) & np.isfinite(lod), lod, np.nan)
 
 
@@ -277,7 +277,7 @@ def _bilinear(level: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def warp_cv2(image: np.ndarray, H_cam_from_proj, fold_proj, rect, projector_size,
+def warp_cv2(image: np.ndarray, H_cam_from_proj, planes, rect, projector_size,
              offset=None) -> np.ndarray:
     """Warp ``image`` into projector space: the reference twin of :class:`rtdefocus.gl.warp.GLWarp`.
 
@@ -287,7 +287,7 @@ def warp_cv2(image: np.ndarray, H_cam_from_proj, fold_proj, rect, projector_size
         RGB input, any size.
     H_cam_from_proj : (n, 3, 3) float64
         Per-plane homographies, projector pixel -> camera pixel (n = 1 .. MAX_PLANES).
-    fold_proj : PlaneLayout, (3,) float64 or None
+    planes : PlaneLayout, (3,) float64 or None
         The planes (``calib.layout``; for two planes also their fold line, plane 0 where
         negative; ignored for n = 1).
     rect : (x0, y0, w, h)
@@ -304,7 +304,7 @@ def warp_cv2(image: np.ndarray, H_cam_from_proj, fold_proj, rect, projector_size
     """
     img = check_image(image)
     Hh, W = img.shape[:2]
-    u, v, z, lod = _geometry(H_cam_from_proj, fold_proj, rect, (W, Hh), projector_size,
+    u, v, z, lod = _geometry(H_cam_from_proj, planes, rect, (W, Hh), projector_size,
                              offset=offset)
     ok = (z > 0) & np.isfinite(u) & np.isfinite(v)
     u = np.where(ok, u, -2.0)

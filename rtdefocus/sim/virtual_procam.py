@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..calib.radiometry.camera_response import linear_to_srgb, srgb_to_linear
+from ..checks import check_choice
 from ..errors import InputError
 from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
@@ -167,8 +168,7 @@ class VirtualProCam:
         for what, size in (("projector_size", projector_size), ("camera_size", camera_size)):
             if len(size) != 2 or min(int(size[0]), int(size[1])) < 16:
                 raise InputError(f"{what} must be (width, height) with both >= 16; got {size!r}")
-        if aperture not in ("disc", "hex"):
-            raise InputError(f"aperture must be 'disc' or 'hex'; got {aperture!r}")
+        check_choice(aperture, ("disc", "hex"), "aperture")
         chromatic = tuple(float(c) for c in chromatic)
         if len(chromatic) != 3 or min(chromatic) <= 0:
             raise InputError(f"chromatic must be three positive radius scales (R, G, B); got {chromatic}")
@@ -196,8 +196,7 @@ class VirtualProCam:
             raise InputError(f"Scene.exposure_gain must be > 0; got {scene.exposure_gain}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
-        if camera_response not in ("gamma", "srgb"):
-            raise InputError(f"camera_response must be 'gamma' or 'srgb'; got {camera_response!r}")
+        check_choice(camera_response, ("gamma", "srgb"), "camera_response")
         distortion = tuple(float(k) for k in distortion)
         if len(distortion) != 2 or max(abs(k) for k in distortion) > 0.3:
             raise InputError(f"distortion must be (k1, k2) with |k| <= 0.3; got {distortion}")

@@ -4,7 +4,7 @@ Modules, one concept each:
 
 * :mod:`.stage` — :func:`calibrate_psf`, :class:`PsfOptions`: the stage itself;
 * :mod:`.pilot` — the pilot radius model and the fold code;
-* :mod:`.layout` — where the samples go (:func:`plan_samples`, :data:`LAYOUTS`);
+* :mod:`.sampling` — where the samples go (:func:`plan_samples`, :data:`LAYOUTS`);
 * :mod:`.dots` — dot patterns, their capture and the kernels cut out of them;
 * :mod:`.kernel_field` — the interpolation field (indices and weights per pixel);
 * :mod:`.diagnostics` — the radius map and the stage's picture.

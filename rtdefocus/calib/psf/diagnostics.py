@@ -8,7 +8,7 @@ import numpy as np
 from ...errors import CalibrationError, InputError
 from ..file import Calibration
 from .dots import equivalent_radius
-from .layout import fold_segments
+from .sampling import fold_segments
 
 __all__ = ["radius_map", "psf_diagnostics"]
 

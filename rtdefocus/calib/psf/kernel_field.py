@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import CalibrationError, InputError
+from ...checks import check_choice
+from ...errors import CalibrationError
 from ..file import Calibration
-from .layout import SamplePlan
 from .pilot import fold_code
+from .sampling import SamplePlan
 
 __all__ = ["interpolation_field"]
 
@@ -108,8 +109,7 @@ def interpolation_field(calib: Calibration, plan: SamplePlan, *, mode: str | Non
     idx : (Hp, Wp, 4) int32, wts : (Hp, Wp, 4) float32 (rows sum to 1, unused slots 0).
     """
     mode = mode or ("cross" if plan.cross_fold else "planes")
-    if mode not in ("planes", "cross"):
-        raise InputError(f"mode must be 'planes' or 'cross'; got {mode!r}")
+    check_choice(mode, ("planes", "cross"), "mode")
     wp, hp = calib.projector_size
     ys, xs = np.mgrid[0:hp, 0:wp]
     pix_all = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)

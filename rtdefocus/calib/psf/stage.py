@@ -60,7 +60,7 @@ The stage, step by step (every step only calls ``capture``):
    edge, clamped) or bilinear on quads (``paper``). Never across a fold unless ``cross_fold``:
    a pixel blends only its own plane's samples (and, ``paper``, the ends of its plane's folds).
 
-Modules, one per step: :mod:`.pilot` (1), :mod:`.layout` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
+Modules, one per step: :mod:`.pilot` (1), :mod:`.sampling` (2), :mod:`.dots` (3-5), :mod:`.kernel_field`
 (6), :mod:`.diagnostics` (pictures). This module holds the stage: its options and
 :func:`calibrate_psf`, built from :class:`PsfRun` (pilot -> plans -> one measurement -> a field
 per plan), which :mod:`rtdefocus.study.eval_layouts` also uses to compare layouts on one measurement.
@@ -74,6 +74,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from ...checks import check_choice
 from ...errors import InputError
 from ..capture import Capturer
 from ..file import Calibration
@@ -92,8 +93,8 @@ from .dots import (
     pack_patterns,
 )
 from .kernel_field import interpolation_field
-from .layout import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
 from .pilot import FOLD, RadiusModel, fold_code, pilot_radius
+from .sampling import LAYOUTS, SamplePlan, fold_segment, fold_segments, plan_samples
 
 log = logging.getLogger(__name__)
 
@@ -204,8 +205,7 @@ class PsfRun:
               layouts) -> PsfRun:
         """Check the options, begin the stage's captures and take the pilot (step 1)."""
         for lay, _ in layouts:
-            if lay not in LAYOUTS:
-                raise InputError(f"layout must be one of {LAYOUTS}; got {lay!r}")
+            check_choice(lay, LAYOUTS, "layout")
         dot_sizes(np.zeros(1), options.dot_size)       # validates
         # The camera's inverse response from the radiometry stage (linear when not measured).
         camera_gamma = calib.camera_lut if calib.camera_lut is not None else 1.0
@@ -278,11 +278,10 @@ class PsfRun:
         by (the radiometry stage's, or this stage's own): an auto-exposure that drifted over
         the stage raises :class:`CalibrationError` naming the fix (:mod:`..exposure`)."""
         from ..radiometry.exposure import check_end_white
-        from ..radiometry.stage import cached_frame_count, mean_frame
 
         wp, hp = self.calib.projector_size
-        white, black = (mean_frame(self.capture, key, np.full((hp, wp, 3), value, np.uint8),
-                                   cached_frame_count(self.capture, key))
+        white, black = (self.capture.mean_frame(key, np.full((hp, wp, 3), value, np.uint8),
+                                                self.capture.frame_count(key))
                         for key, value in (("white", 255), ("black", 0)))
         return check_end_white(self.capture, self.calib, white, black, self.camera_gamma)
 
@@ -428,14 +427,12 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_gamma=1.0):
     import cv2
     from scipy import ndimage
 
-    from ..radiometry.stage import cached_frame_count, mean_frame
-
     wp, hp = calib.projector_size
     frames = []
     for key, value in (("black", 0), ("white", 255)):
-        n = max(cached_frame_count(capture, key), 2)
-        frames.append(linearize_camera(mean_frame(capture, key, np.full((hp, wp, 3), value,
-                                                                         np.uint8), n),
+        n = max(capture.frame_count(key), 2)
+        frames.append(linearize_camera(capture.mean_frame(key, np.full((hp, wp, 3), value,
+                                                                      np.uint8), n),
                                        camera_gamma).sum(axis=2))
     black, white = frames
     span = white - black

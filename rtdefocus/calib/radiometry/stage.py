@@ -29,12 +29,12 @@ is exactly what the projector's full white produces at each pixel (≈ the in-fo
 from __future__ import annotations
 
 import logging
-import weakref
 from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
 
+from ...checks import check_choice
 from ...errors import CalibrationError, InputError
 from ...planar import apply_h_per_plane
 from ..capture import Capturer
@@ -98,10 +98,6 @@ _D = RadiometryOptions()
 # A camera code at or above this is treated as clipped.
 SATURATED = 250.0
 
-# Mean frames kept per calibration run (keyed by the Capturer, so nothing leaks between runs):
-# a later stage, or a second radiometry pass with other options, reuses them for free.
-_FRAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
 
 # --------------------------------------------------------------------------- helpers
 def linearize_camera(codes: np.ndarray, camera_gamma: float | np.ndarray | None = 1.0) -> np.ndarray:
@@ -111,28 +107,6 @@ def linearize_camera(codes: np.ndarray, camera_gamma: float | np.ndarray | None 
     a (3, 256) inverse-response table (``calib.camera_lut``) is interpolated per channel.
     """
     return linearize(codes, camera_gamma)
-
-
-def mean_frame(capture: Capturer, key: str, pattern: np.ndarray, n: int) -> np.ndarray:
-    """Average of ``n`` captures of ``pattern``, cached per calibration run under ``key``.
-
-    A later call with the same ``capture`` reuses the captures already taken and only adds the
-    missing ones. Returns float32 camera codes (Hc, Wc, 3).
-    """
-    cache = _FRAMES.setdefault(capture, {})
-    have_n, have = cache.get(key, (0, None))
-    if have_n >= n:
-        return have
-    extra = capture.mean(pattern, n - have_n)
-    mean = extra if have is None else (have * have_n + extra * (n - have_n)) / n
-    mean = mean.astype(np.float32)
-    cache[key] = (n, mean)
-    return mean
-
-
-def cached_frame_count(capture: Capturer, key: str) -> int:
-    """How many captures the cached mean ``key`` holds (0 if none)."""
-    return _FRAMES.get(capture, {}).get(key, (0, None))[0]
 
 
 def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
@@ -309,17 +283,14 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         When the white frame is not brighter than the black one where the projector lights
         the surface, when the camera saturates on white, or when no ramp patch is usable.
     """
-    if response_model not in ("auto", "gamma", "table"):
-        raise InputError(f"response_model must be 'auto', 'gamma' or 'table'; got {response_model!r}")
-    if ramp_layout not in ("patches", "frames"):
-        raise InputError(f"ramp_layout must be 'patches' or 'frames'; got {ramp_layout!r}")
+    check_choice(response_model, ("auto", "gamma", "table"), "response_model")
+    check_choice(ramp_layout, ("patches", "frames"), "ramp_layout")
     levels = np.array(sorted({int(v) for v in ramp_levels}), dtype=int)
     if levels.size < 2 or levels.min() < 1 or levels.max() > 255:
         raise InputError(f"ramp_levels needs at least 2 distinct levels in 1..255; got {ramp_levels}")
     if black_frames < 1 or white_frames < 1 or response_frames < 1:
         raise InputError("black_frames, white_frames and response_frames must be >= 1")
-    if camera_response not in CAMERA_RESPONSES:
-        raise InputError(f"camera_response must be one of {CAMERA_RESPONSES}; got {camera_response!r}")
+    check_choice(camera_response, CAMERA_RESPONSES, "camera_response")
     wp, hp = calib.projector_size
     n_ramp = 1 if ramp_layout == "patches" else len(levels)
     auto = camera_response == "auto" and camera_gamma == 1.0
@@ -327,14 +298,14 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
 
     black_pat = np.zeros((hp, wp, 3), np.uint8)
     white_pat = np.full((hp, wp, 3), 255, np.uint8)
-    black_c = mean_frame(capture, "black", black_pat, black_frames)
+    black_c = capture.mean_frame("black", black_pat, black_frames)
     # One white frame now, the rest at the end of the stage: the two must agree (a camera whose
     # auto-exposure or white balance is not locked drifts in between).
-    spaced = cached_frame_count(capture, "white") == 0 and white_frames >= 2
+    spaced = capture.frame_count("white") == 0 and white_frames >= 2
     # The geometry stage's white frame (its first capture), when it took one: the same frame
     # again now tells whether the exposure moved while the lines were projected.
     geometry_white = capture.first_white
-    white_first = mean_frame(capture, "white", white_pat, 1)
+    white_first = capture.mean_frame("white", white_pat, 1)
     in_view = _lit_camera_mask(calib)
     check_exposure(white_first, in_view, SATURATED, black_c)
 
@@ -352,9 +323,9 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         radiometry_done = capture.stage_done
         capture.begin("camera response", 3 * response_frames)
         pat_a, pat_b = split_pattern(ramp_pat)
-        ramp_c = mean_frame(capture, "ramp", ramp_pat, response_frames)
-        a_c = mean_frame(capture, "ramp_a", pat_a, response_frames)
-        b_c = mean_frame(capture, "ramp_b", pat_b, response_frames)
+        ramp_c = capture.mean_frame("ramp", ramp_pat, response_frames)
+        a_c = capture.mean_frame("ramp_a", pat_a, response_frames)
+        b_c = capture.mean_frame("ramp_b", pat_b, response_frames)
         cam_lut, response_info = fit_inverse_response(black_c, a_c, b_c, ramp_c, in_view)
         kind = "auto"
         capture.begin("radiometry", black_frames + white_frames + n_ramp, done=radiometry_done)
@@ -366,7 +337,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
                                   in_view, cam_lut, stage="geometry")
     if ramp_layout == "patches" and ramp_c is None:
         ramp_c = capture(ramp_pat)
-    white_c = mean_frame(capture, "white", white_pat, white_frames)
+    white_c = capture.mean_frame("white", white_pat, white_frames)
     drift_info = None
     if spaced:
         later = (white_c * white_frames - white_first) / (white_frames - 1)
@@ -466,6 +437,6 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     return calib
 
 
-__all__ = ["calibrate_radiometry", "fit_gamma", "linearize_camera", "mean_frame",
+__all__ = ["calibrate_radiometry", "fit_gamma", "linearize_camera",
            "projector_to_camera_maps", "to_projector", "ramp_pattern", "OPTIONS", "DEFAULT_LEVELS",
            "RadiometryOptions"]

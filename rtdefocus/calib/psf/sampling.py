@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import CalibrationError, InputError
+from ...checks import check_choice
+from ...errors import CalibrationError
 from ...planar import clip_polygon, inset_frame
 from ..file import Calibration
 from .dots import dot_geometry, dot_sizes
@@ -313,8 +314,7 @@ def plan_samples(calib: Calibration, model: RadiusModel, layout: str = "default"
     Samples closer than two dots may be in one pattern are thinned out (corners first, then
     fold samples, then the rest), so that a layout fits in as few patterns as possible.
     """
-    if layout not in LAYOUTS:
-        raise InputError(f"layout must be one of {LAYOUTS}; got {layout!r}")
+    check_choice(layout, LAYOUTS, "layout")
     size = calib.projector_size
     one_region = cross_fold or calib.n_planes == 1
     regions = [0] if one_region else list(range(calib.n_planes))
