@@ -9,7 +9,7 @@ The displacement of plane p is a uniform cubic B-spline over the projector frame
 
 with the spans spread evenly over pixel centres 0 .. W-1 (and 0 .. H-1), clamped outside.
 It is C² (no kink a checkerboard row would show), linear in ``ctrl`` (a least-squares fit), and
-few numbers (a 9 × 7 grid: 126 per plane). This module is a leaf: NumPy only.
+few numbers (a 9 × 7 grid: 126 per plane). This module is a leaf beside :mod:`rtdefocus.planar`.
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
+from .planar import apply_h
 
 __all__ = ["DEFAULT_GRID", "basis", "displacement", "dense_displacement", "fit_residual",
-           "check_residual"]
+           "check_residual", "proj_from_cam"]
 
 #: Control points (gx, gy) of a plane's residual over the frame (>= 4 each).
 DEFAULT_GRID = (9, 7)
@@ -117,3 +118,15 @@ def check_residual(ctrl, n_planes: int, where: str = "residual_cam") -> np.ndarr
     if not np.isfinite(c).all():
         raise InputError(f"{where} contains NaN or infinite values; recalibrate the geometry")
     return c
+
+
+def proj_from_cam(H_proj_from_cam: np.ndarray, ctrl: np.ndarray, pts_cam_xy: np.ndarray,
+                  projector_size: tuple[int, int], iterations: int = 8) -> np.ndarray:
+    """(N, 2) projector points whose camera points (homography plus residual ``ctrl``) are
+    ``pts_cam_xy``: fixed-point steps ``x <- H⁻¹(c - d(x))``, which converge fast because the
+    residual changes by far less than a pixel per pixel."""
+    c = np.asarray(pts_cam_xy, np.float64).reshape(-1, 2)
+    x = apply_h(H_proj_from_cam, c)
+    for _ in range(iterations):
+        x = apply_h(H_proj_from_cam, c - displacement(ctrl, x[:, 0], x[:, 1], projector_size))
+    return x
