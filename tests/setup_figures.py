@@ -102,7 +102,8 @@ def fold_error(calib, truth) -> float:
 
 def homography_rms(calib, truth, n: int = 4000) -> float:
     """RMS (camera px) over ``n`` projector points spread over the frame, farther than 8 px from
-    every true fold, between where the calibration maps each (its plane's homography) and where
+    every true fold, between where the calibration maps each (its plane's homography, plus its
+    residual when it has one) and where
     the truth does (the true plane's; on a set-up whose walls bow, the exact map
     ``truth.cam_from_proj`` at pixel centres). Points on no true plane (a far wall) are left
     out."""
@@ -125,7 +126,7 @@ def homography_rms(calib, truth, n: int = 4000) -> float:
             sel = (est_plane == k) & (true_plane == j)
             want = (truth.cam_from_proj[iy[sel], ix[sel]] if dense
                     else apply_h(truth.H_cam_from_proj[j], pts[sel]))
-            err[sel] = np.linalg.norm(apply_h(calib.H_cam_from_proj[k], pts[sel]) - want, axis=1)
+            err[sel] = np.linalg.norm(calib.cam_from_proj(pts[sel, 0], pts[sel, 1]) - want, axis=1)
     return float(np.sqrt(np.nanmean(err ** 2)))
 
 
