@@ -65,7 +65,7 @@ __all__ = ["GeometryDetail", "fit_geometry", "check_planes_option"]
 MAX_FOLD_DISAGREEMENT = 3.0
 #: A plane's residual field larger than this (camera px) somewhere in the frame is reported: the
 #: wall is then far from a plane (or two surfaces were taken for one).
-MAX_RESIDUAL_PX = 12.0
+MAX_RESIDUAL_PX = 20.0
 
 
 @dataclass
@@ -119,7 +119,8 @@ def check_planes_option(planes) -> int | None:
 
 def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
                  camera_size: tuple[int, int], *, planes="auto", min_kink_deg: float = 1.0,
-                 fold_band: float = 12.0, ransac_threshold: float = 1.5, residual: bool = False):
+                 fold_band: float = 12.0, ransac_threshold: float = 1.5, residual: bool = False,
+                 max_fold_disagreement: float = MAX_FOLD_DISAGREEMENT):
     """Planes, homographies and folds from the detected lines (steps in the module docstring).
 
     Parameters
@@ -130,6 +131,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     min_kink_deg, fold_band, ransac_threshold : see :class:`~.geometry.GeometryOptions`
         (``fold_band`` in camera px, not None here).
     residual : fit each plane's smooth residual (step 6); ``parts["residual_cam"]`` holds it.
+    max_fold_disagreement : projector px two planes' images of their fold may differ by.
 
     Returns
     -------
@@ -199,7 +201,8 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         (Hs, fits, folds_proj, folds_cam, fold_planes, plane, fold_stats,
          kink_fold, segs, ctrl) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
                                               band, ransac_threshold,
-                                              projector_size if residual else None)
+                                              projector_size if residual else None,
+                                              max_fold_disagreement)
         # ---- numbering (docs/internals.md)
         layout_proj = PlaneLayout(n, folds_proj, fold_planes)
         order = _plane_order(layout_proj, projector_size)
@@ -302,7 +305,8 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     return ctrl, keep, rms, biggest
 
 
-def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None):
+def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
+                max_disagreement=MAX_FOLD_DISAGREEMENT):
     """Steps 3-6 for n >= 2 planes, in the model selection's numbering; ``residual_size``
     (the projector size) fits the residual fields (else None is returned for them)."""
     kpts = np.array([kk.point_cam_xy for kk in kinks]).reshape(-1, 2)
@@ -367,7 +371,7 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
         line, dis = fold_to_projector(folds_cam[j], Hinv[[a, b]], seg, to_proj=to_proj)
         line = canonical_line(line)
         fold_stats[j]["disagreement_px"] = round(dis, 4)
-        if dis > MAX_FOLD_DISAGREEMENT:
+        if dis > max_disagreement:
             raise CalibrationError(
                 f"planes {a + 1} and {b + 1} disagree about where their fold is by {dis:.1f} "
                 "projector px: the kinks do not lie where the homographies meet. Check that the "

@@ -27,7 +27,7 @@ from ...errors import CalibrationError, InputError
 from ...procam import ProCam
 from ..capture import Capturer
 from ..file import Calibration
-from .fit import GeometryDetail, check_planes_option, fit_geometry
+from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns
@@ -61,7 +61,8 @@ class GeometryOptions:
     residual : fit each plane a smooth residual off its homography (walls that are planes
         only nearly: a bowed panel, a sagging sheet), carried by the warp and the file; when
         the flat-plane fit refuses the set-up, it is fitted again with a looser inlier distance
-        (:data:`NEARLY_FLAT_FACTOR` × ``ransac_threshold``) and the residual. False: exact
+        (:data:`NEARLY_FLAT_FACTOR` × ``ransac_threshold``, and as many times the fold
+        disagreement) and the residual. False: exact
         planes (the paper's model).
     """
 
@@ -138,10 +139,12 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     camera_size = tuple(procam.camera_size)
     band = float(fold_band) if fold_band is not None else float(det.half)
 
-    def fit(detection: LineDetection, threshold: float = ransac_threshold) -> Calibration:
+    def fit(detection: LineDetection, threshold: float = ransac_threshold,
+            disagreement: float = MAX_FOLD_DISAGREEMENT) -> Calibration:
         parts, stats, detail = fit_geometry(detection, pats.projector_size, camera_size,
                                             planes=planes, min_kink_deg=min_kink_deg,
                                             residual=bool(residual),
+                                            max_fold_disagreement=disagreement,
                                             fold_band=band, ransac_threshold=threshold)
         options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
@@ -162,8 +165,9 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         log.info("geometry: the flat-plane fit refused the set-up (%s); fitting nearly flat "
                  "planes (inliers within %.1f px, residual fields)", exc, loose)
         try:
-            calib = fit_with_lens(lambda d: fit(d, loose), detection, camera_size,
-                                  correct=bool(undistort))
+            calib = fit_with_lens(
+                lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT), detection,
+                camera_size, correct=bool(undistort))
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
