@@ -120,7 +120,8 @@ def check_planes_option(planes) -> int | None:
 def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
                  camera_size: tuple[int, int], *, planes="auto", min_kink_deg: float = 1.0,
                  fold_band: float = 12.0, ransac_threshold: float = 1.5, residual: bool = False,
-                 max_fold_disagreement: float = MAX_FOLD_DISAGREEMENT):
+                 max_fold_disagreement: float = MAX_FOLD_DISAGREEMENT,
+                 residual_threshold: float | None = None, min_residual_inliers: float = 0.0):
     """Planes, homographies and folds from the detected lines (steps in the module docstring).
 
     Parameters
@@ -132,6 +133,10 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         (``fold_band`` in camera px, not None here).
     residual : fit each plane's smooth residual (step 6); ``parts["residual_cam"]`` holds it.
     max_fold_disagreement : projector px two planes' images of their fold may differ by.
+    residual_threshold : camera px a crossing may be off homography plus residual and count
+        as fitting it (None: ``ransac_threshold``).
+    min_residual_inliers : least share of each plane's crossings that must fit homography plus
+        residual; below it the crossings are inconsistent (the set-up moved) and the fit stops.
 
     Returns
     -------
@@ -149,6 +154,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     """
     want = check_planes_option(planes)
     band = float(fold_band)
+    res_thr = float(ransac_threshold if residual_threshold is None else residual_threshold)
     detail = GeometryDetail(detection=detection)
     kinks = []
     for k, ln in enumerate(detection.lines):
@@ -193,8 +199,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         detail.fold_inliers = np.zeros(len(kinks), bool)
         detail.kink_fold = np.full(len(kinks), -1)
         layout_proj = PlaneLayout(1)
-        ctrl = [plane_residual(H, proj, cam, projector_size, ransac_threshold)] if residual \
-            else None
+        ctrl = [plane_residual(H, proj, cam, projector_size, res_thr)] if residual else None
     else:
         raw = label_crossings([cands[i][0] for i in kept], proj, cam, ransac_threshold)
         coarse, _ = clean_labels(grid, raw, n)
@@ -202,7 +207,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
          kink_fold, segs, ctrl) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
                                               band, ransac_threshold,
                                               projector_size if residual else None,
-                                              max_fold_disagreement)
+                                              max_fold_disagreement, res_thr)
         # ---- numbering (docs/internals.md)
         layout_proj = PlaneLayout(n, folds_proj, fold_planes)
         order = _plane_order(layout_proj, projector_size)
@@ -248,6 +253,14 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
             "inlier_fraction": [round(float(c[1].mean()), 4) for c in ctrl],
             "max_px": [round(c[3], 3) for c in ctrl]}
         for p, c in enumerate(ctrl):
+            share = float(c[1].mean()) if c[1].size else 0.0
+            if share < min_residual_inliers:
+                raise CalibrationError(
+                    f"plane {p + 1} of {n}: the line crossings are inconsistent — only "
+                    f"{100 * share:.0f} % of {c[1].size} fit its homography and a smooth residual "
+                    f"within {res_thr} camera px. The set-up probably moved between captures "
+                    "(camera or projector knocked, auto-focus or image stabilisation on), or the "
+                    "surface is not smooth there. Fix both devices firmly and calibrate again.")
             if c[3] > MAX_RESIDUAL_PX:
                 log.warning("plane %d of %d: its residual reaches %.1f camera px off its homography"
                             ": far from a plane, or two surfaces taken for one", p + 1, n, c[3])
@@ -306,7 +319,7 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
 
 
 def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
-                max_disagreement=MAX_FOLD_DISAGREEMENT):
+                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None):
     """Steps 3-6 for n >= 2 planes, in the model selection's numbering; ``residual_size``
     (the projector size) fits the residual fields (else None is returned for them)."""
     kpts = np.array([kk.point_cam_xy for kk in kinks]).reshape(-1, 2)
@@ -356,7 +369,8 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
     Hinv = np.stack([np.linalg.inv(H) for H in Hs])
     ctrl = None
     if residual_size is not None:
-        ctrl = [plane_residual(Hs[p], proj[plane == p], cam[plane == p], residual_size, threshold)
+        rt = threshold if residual_threshold is None else residual_threshold
+        ctrl = [plane_residual(Hs[p], proj[plane == p], cam[plane == p], residual_size, rt)
                 for p in range(n)]
     folds_proj, segs = [], []
     for j, (a, b) in enumerate(pairs):

@@ -84,6 +84,9 @@ _D = GeometryOptions()
 #: The inlier distance of the second, nearly-flat fit, as a multiple of ``ransac_threshold``:
 #: walls a few camera px off a plane stay one plane each, their residual fields take the rest.
 NEARLY_FLAT_FACTOR = 4.0
+#: ... but homography plus residual must still fit this share of each plane's crossings within
+#: ``ransac_threshold``: crossings from before and after a knock are no smooth residual.
+NEARLY_FLAT_INLIERS = 0.9
 
 
 def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
@@ -140,11 +143,14 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     band = float(fold_band) if fold_band is not None else float(det.half)
 
     def fit(detection: LineDetection, threshold: float = ransac_threshold,
-            disagreement: float = MAX_FOLD_DISAGREEMENT) -> Calibration:
+            disagreement: float = MAX_FOLD_DISAGREEMENT, min_residual_inliers: float = 0.0
+            ) -> Calibration:
         parts, stats, detail = fit_geometry(detection, pats.projector_size, camera_size,
                                             planes=planes, min_kink_deg=min_kink_deg,
                                             residual=bool(residual),
                                             max_fold_disagreement=disagreement,
+                                            residual_threshold=ransac_threshold,
+                                            min_residual_inliers=min_residual_inliers,
                                             fold_band=band, ransac_threshold=threshold)
         options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
@@ -166,8 +172,9 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                  "planes (inliers within %.1f px, residual fields)", exc, loose)
         try:
             calib = fit_with_lens(
-                lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT), detection,
-                camera_size, correct=bool(undistort))
+                lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT,
+                              NEARLY_FLAT_INLIERS), detection, camera_size,
+                correct=bool(undistort))
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
