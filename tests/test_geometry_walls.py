@@ -91,3 +91,20 @@ def test_flat_walls_get_a_negligible_residual():
     assert max(calib.meta["geometry"]["residual"]["max_px"]) < 0.5
     assert "nearly_flat" not in calib.meta["geometry"]
     assert abs(checker("cubicle", calib)[0] - checker("cubicle", flat)[0]) < 0.02
+
+
+def test_cli_flat_option(tmp_path):
+    """``rtdefocus calibrate --flat`` writes exact planes; without it the file carries each
+    plane's residual (format 4), and both load."""
+    from rtdefocus import cli
+    from rtdefocus.calib.file import Calibration
+
+    out = {}
+    for name, extra in (("bent", []), ("flat", ["--flat"])):
+        path = tmp_path / f"{name}.npz"
+        assert cli.main(["-q", "calibrate", "--sim", "bowed", "--stages", "geometry",
+                         "-o", str(path), *extra]) == 0
+        out[name] = Calibration.load(path)
+    assert out["flat"].residual_cam is None
+    assert out["bent"].residual_cam is not None and out["bent"].n_planes == 2
+    assert max(out["bent"].meta["geometry"]["residual"]["max_px"]) > 1.0
