@@ -116,11 +116,11 @@ def test_eval_options_quick_then_explicit():
 
     args = cli.build_parser().parse_args(["eval", "--quick", "--presets", "tilted,pillar",
                                           "--size", "320x240", "--no-oracle"])
-    opts = cli._eval_options(args)
+    opts = cli.eval_options(args)
     assert opts["presets"] == ("tilted", "pillar") and opts["images"] == QUICK["images"]
     assert opts["projector_size"] == (320, 240) and "camera_size" not in opts
     assert opts["oracle"] is False
-    full = cli._eval_options(cli.build_parser().parse_args(["eval"]))
+    full = cli.eval_options(cli.build_parser().parse_args(["eval"]))
     assert "presets" not in full and "projector_size" not in full and full["oracle"] is True
 
 
