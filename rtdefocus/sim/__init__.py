@@ -14,6 +14,7 @@ Modules, one concept each:
 * :mod:`~rtdefocus.sim.virtual_procam` — :class:`VirtualProCam`: irradiance shading, albedo, ambient,
   responses, noise, the camera's view; :func:`capture_seconds`;
 * :mod:`~rtdefocus.sim.truth` — :class:`GroundTruth`;
+* :mod:`~rtdefocus.sim.texture` — the "fabric" wall texture;
 * :mod:`~rtdefocus.sim.oracle` — :func:`oracle_calibration`, a Calibration from the truth;
 * :mod:`~rtdefocus.sim.patterns` — :data:`PATTERNS`, :func:`test_pattern`.
 """
