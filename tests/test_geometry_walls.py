@@ -85,10 +85,13 @@ def test_sagging_sheets_refused_as_exact_planes_fit_as_nearly_flat_ones():
     assert np.sqrt(np.mean(np.sum(d ** 2, axis=1))) < 0.1
 
 
-def test_flat_walls_get_a_negligible_residual():
-    """On exact planes the residual is noise: well under a pixel, and the warp as good."""
+def test_flat_walls_get_no_residual():
+    """On exact planes a residual field would fit the crossings' noise: none is kept, and the
+    calibration is the exact-plane one."""
     calib, flat = geometry("cubicle"), geometry("cubicle", residual=False)
-    assert max(calib.meta["geometry"]["residual"]["max_px"]) < 0.5
+    res = calib.meta["geometry"]["residual"]
+    assert calib.residual_cam is None and res["kept"] is False
+    assert max(res["rms_px_flat"]) < 0.1
     assert "nearly_flat" not in calib.meta["geometry"]
     assert abs(checker("cubicle", calib)[0] - checker("cubicle", flat)[0]) < 0.02
 

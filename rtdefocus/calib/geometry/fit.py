@@ -68,6 +68,8 @@ MAX_FOLD_DISAGREEMENT = 3.0
 #: A plane's residual field larger than this (camera px) somewhere in the frame is reported: the
 #: wall is then far from a plane (or two surfaces were taken for one).
 MAX_RESIDUAL_PX = 20.0
+#: A residual field within this (camera px) everywhere is the crossings' noise: none is kept.
+MIN_RESIDUAL_PX = 0.5
 
 
 @dataclass
@@ -244,6 +246,9 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
              "folds_cam": np.asarray(folds_cam, np.float64).reshape(-1, 3),
              "fold_planes": np.asarray(fold_planes, np.int32).reshape(-1, 2),
              "lit_polygon_cam": lit_polygon(projector_size, Hs, layout_proj)}
+    if ctrl is not None and not any(np.any(c[0]) for c in ctrl):
+        stats["residual"] = {"rms_px_flat": [round(c[4], 4) for c in ctrl], "kept": False}
+        ctrl = None                 # exact planes: no field is worth keeping
     if ctrl is not None:
         parts["residual_cam"] = np.stack([c[0] for c in ctrl])
         res_in = np.zeros(len(proj), bool)
@@ -253,7 +258,8 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         stats["residual"] = {
             "rms_px": [round(c[2], 4) for c in ctrl],
             "inlier_fraction": [round(float(c[1].mean()), 4) for c in ctrl],
-            "max_px": [round(c[3], 3) for c in ctrl]}
+            "max_px": [round(c[3], 3) for c in ctrl],
+            "rms_px_flat": [round(c[4], 4) for c in ctrl], "kept": True}
         for p, c in enumerate(ctrl):
             share = float(c[1].mean()) if c[1].size else 0.0
             if share < min_residual_inliers:
@@ -300,11 +306,14 @@ def _check_count(want: int | None, kept: list[int], evidence) -> None:
 def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
                    projector_size: tuple[int, int], threshold: float):
     """One plane's residual field from its crossings (step 6): (ctrl (gy, gx, 2), inliers (N,)
-    bool, RMS camera px of the inliers after the field, largest |field| over the frame (px)).
+    bool, RMS camera px of the inliers after the field, largest |field| over the frame (px),
+    RMS of the same crossings off the homography alone).
 
     What the homography leaves is fitted by :func:`rtdefocus.residual.fit_residual`; crossings
     more than ``threshold`` off homography plus field are left out and the field refitted
-    (twice), so a stray crossing does not bend the wall."""
+    (twice), so a stray crossing does not bend the wall. A field that does not halve the
+    homography's misfit, or stays within :data:`MIN_RESIDUAL_PX`, is noise: the plane is kept
+    exactly flat (zero field)."""
     r = cam - apply_h(H, proj)
     norm = np.linalg.norm(r, axis=1)
     keep = norm <= max(4.0 * threshold, 2.0 * float(np.percentile(norm, 90)) if len(norm) else 0)
@@ -313,11 +322,16 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
         err = np.linalg.norm(r - displacement(ctrl, proj[:, 0], proj[:, 1], projector_size), axis=1)
         keep = err <= threshold
     rms = float(np.sqrt(np.mean(err[keep] ** 2))) if keep.any() else float("inf")
+    rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
     wp, hp = projector_size
     gx, gy = np.meshgrid(np.linspace(0, wp - 1, 33), np.linspace(0, hp - 1, 25))
     biggest = float(np.linalg.norm(displacement(ctrl, gx.ravel(), gy.ravel(), projector_size),
                                    axis=1).max())
-    return ctrl, keep, rms, biggest
+    if not (rms_flat > 2.0 * rms and biggest > MIN_RESIDUAL_PX):
+        ctrl, biggest = np.zeros_like(ctrl), 0.0
+        keep = norm <= threshold
+        rms = rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
+    return ctrl, keep, rms, biggest, rms_flat
 
 
 def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
@@ -385,7 +399,7 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
             to_proj = [functools.partial(proj_from_cam, Hinv[q], ctrl[q][0],
                                          projector_size=residual_size) for q in (a, b)]
         line, dis = fold_to_projector(folds_cam[j], Hinv[[a, b]], seg, to_proj=to_proj)
-        if ctrl is not None:
+        if ctrl is not None and (np.any(ctrl[a][0]) or np.any(ctrl[b][0])):
             line = crease(line, [(Hs[q], ctrl[q][0]) for q in (a, b)], residual_size)
         line = canonical_line(line)
         fold_stats[j]["disagreement_px"] = round(dis, 4)
