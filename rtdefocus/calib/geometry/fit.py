@@ -419,7 +419,7 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
             fold_stats, kink_fold, segs, ctrl)
 
 
-def crease(line: np.ndarray, maps, projector_size: tuple[int, int], reach: float = 8.0,
+def crease(line: np.ndarray, maps, projector_size: tuple[int, int], reach: float = 16.0,
            step: float = 0.25, min_shift: float = 1.0) -> np.ndarray:
     """The projector fold where two planes' full maps (homography plus residual) meet, near
     ``line``: at points along it inside the frame, the offset along its normal (within
