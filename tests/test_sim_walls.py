@@ -173,3 +173,17 @@ def test_bowed_wall_bends_camera_lines_a_flat_one_does_not():
         assert row_bend(bowed, row, right) > 0.1
         assert row_bend(bowed, row, left) < 0.01
         assert row_bend(plain, row, right) < 0.01
+
+
+def test_oracle_calibration_of_a_gap_set_up():
+    """The oracle's kernels cover the far wall too (its radii are the largest), each PSF on a
+    plane of the set-up."""
+    pc = procam("gap")
+    calib = sim.oracle_calibration(pc)
+    t = pc.truth
+    assert calib.n_planes == 2 and set(np.unique(calib.psf_plane)) <= {0, 1}
+    far = np.argwhere(t.plane_map == -1)[::500]
+    for y, x in far[:5]:
+        k = calib.kernel_at(x, y)
+        kt = t.kernel_at(x, y, size=k.shape[0])
+        assert np.linalg.norm(k - kt) / np.linalg.norm(kt) < 0.05
