@@ -57,6 +57,17 @@ def test_nearly_flat_walls_calibrate_to_the_exact_map(preset):
     assert rms < 0.15 and bend < 0.15, (rms, bend)
 
 
+def test_the_geometry_picture_says_how_far_the_walls_bow():
+    from rtdefocus.calib.geometry.diagnostics import caption, geometry_diagnostics
+
+    calib = geometry("sagging")
+    text = caption(calib)
+    assert "bow off the planes" in text and "nearly flat" in text
+    assert "bow" not in caption(geometry("cubicle"))
+    img = geometry_diagnostics(calib)
+    assert img.shape == (480, 640, 3) and img.dtype == np.uint8
+
+
 def test_the_residual_is_what_makes_a_bowed_wall_fit():
     """Exact planes leave the bow in the warp: the same captures without the residual put the
     checkerboard measurably farther off, and the model farther from the exact map."""
