@@ -41,7 +41,8 @@ def _fit_again(calib, planes):
     """The fit alone, on the lines ``calib`` was made from (no new captures)."""
     g = calib.meta["geometry"]
     return fit_geometry(calib.geometry_detail.detection, calib.projector_size, calib.camera_size,
-                        planes=planes, fold_band=g["options"]["fold_band"])
+                        planes=planes, fold_band=g["options"]["fold_band"],
+                        residual=g["options"]["residual"])
 
 
 def _match(calib, truth):

@@ -11,7 +11,8 @@ along each true fold inside the frame), the held-out homography error (camera px
 away from the folds), a checkerboard through the calibrated warp (camera px RMS, largest bend
 of a row or column), kernel relative L2 medians inside the planes and within 12 px of any fold,
 the compensation gain over geometry only with the calibrated and the true kernels (and their
-ratio), the dots skipped, and the seconds the calibration took. ``--size`` changes the
+ratio), the dots skipped, and the seconds the calibration took. ``--flat`` calibrates exact planes (no
+residual field), so its rows show what the residual gains on walls that bow. ``--size`` changes the
 projector (the camera is 1.6 x it, as the presets' default); the blur radii stay the preset's
 (``blur_range_px``), so a smaller projector has relatively larger blur.
 """
@@ -35,15 +36,16 @@ PLAIN = ("cubicle", "pillar", "flat", "tilted", "offcenter", "u_cubicle", "corne
 
 
 def measure(preset: str, size: tuple[int, int] | None = None, photos: int = 2,
-            **procam_kw) -> str:
+            calib_kw: dict | None = None, **procam_kw) -> str:
     """One row of :data:`setup_figures.HEADER` for ``preset`` (``procam_kw`` go to
-    :class:`rtdefocus.sim.VirtualProCam`), or a row saying why the calibration failed."""
+    :class:`rtdefocus.sim.VirtualProCam`, ``calib_kw`` to ``rd.calibrate``), or a row saying
+    why the calibration failed."""
     if size is not None:
         procam_kw.update(projector_size=size, camera_size=(int(size[0] * 1.6), int(size[1] * 1.6)))
     pc = rd.sim.VirtualProCam(preset, **procam_kw)
     t0 = time.perf_counter()
     try:
-        cal = rd.calibrate(Blind(pc))
+        cal = rd.calibrate(Blind(pc), **(calib_kw or {}))
     except rd.errors.RtDefocusError as exc:
         return f"| {preset} | fails: {exc} |"
     seconds = time.perf_counter() - t0
@@ -64,10 +66,13 @@ def main() -> None:
     ap.add_argument("--gamma", type=float, default=2.2, help="projector gamma (default 2.2)")
     ap.add_argument("--photos", type=int, default=2,
                     help="photographs the compensation gain is averaged over (0: no gain)")
+    ap.add_argument("--flat", action="store_true",
+                    help="calibrate exact planes (no residual field), to see what it gains")
     args = ap.parse_args()
     print(HEADER)
+    kw = {"residual": False} if args.flat else None
     for p in args.presets:
-        print(measure(p, args.size, args.photos, projector_gamma=args.gamma), flush=True)
+        print(measure(p, args.size, args.photos, kw, projector_gamma=args.gamma), flush=True)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@ corners, and the largest bend of a row or column), kernel relative L2 medians in
 and within 12 px of a fold, the compensation gain over geometry only with the calibrated and
 the true kernels (and their ratio), the dots skipped and the calibration's seconds. The lens
 distortion is on (the presets' k1 = -0.05); ``--no-distortion`` sets it to 0, ``--size``
-changes the projector (the camera is 1.6 x it, as the presets' default).
+changes the projector (the camera is 1.6 x it, as the presets' default); ``--flat`` calibrates
+exact planes (no residual field).
 """
 
 from __future__ import annotations
@@ -33,11 +34,14 @@ def main() -> None:
                     help="projector WxH (default: the preset's)")
     ap.add_argument("--photos", type=int, default=2,
                     help="photographs the compensation gain is averaged over (0: no gain)")
+    ap.add_argument("--flat", action="store_true",
+                    help="calibrate exact planes (no residual field), to see what it gains")
     args = ap.parse_args()
     kw = {"distortion": (0.0, 0.0)} if args.no_distortion else {}
     print(HEADER)
+    calib_kw = {"residual": False} if args.flat else None
     for p in args.presets:
-        print(measure(p, args.size, args.photos, **kw), flush=True)
+        print(measure(p, args.size, args.photos, calib_kw, **kw), flush=True)
 
 
 if __name__ == "__main__":

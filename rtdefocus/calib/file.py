@@ -32,17 +32,19 @@ import numpy as np
 from .. import __version__
 from ..checks import check_coords, check_real, check_size
 from ..errors import CalibrationFileError, InputError
-from ..planar import MAX_PLANES, PlaneLayout, largest_inscribed_rect
+from ..planar import MAX_PLANES, PlaneLayout, apply_h, apply_h_per_plane, largest_inscribed_rect
+from ..residual import check_residual, dense_displacement, displacement
 
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "rtdefocus-calibration"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 #: Versions :meth:`Calibration.load` reads: 1 (before the camera's response and lens
 #: distortion were recorded; both are then taken as ideal), 2 (one fold line at most:
-#: ``fold_proj`` / ``fold_cam``, read as a layout of one or two planes) and the current one
-#: (any number of planes: ``folds_proj``, ``folds_cam``, ``fold_planes``).
-READABLE_VERSIONS = (1, 2, 3)
+#: ``fold_proj`` / ``fold_cam``, read as a layout of one or two planes), 3 (any number of
+#: planes: ``folds_proj``, ``folds_cam``, ``fold_planes``; planes exactly flat) and the current
+#: one (an optional smooth residual per plane, ``residual_cam``; absent: exactly flat).
+READABLE_VERSIONS = (1, 2, 3, 4)
 #: meta key of the content digest (hex SHA-256, see :func:`content_digest`).
 DIGEST_KEY = "sha256"
 
@@ -77,8 +79,11 @@ PSF_ARRAYS = {
 #: response (radiometry stage); absent means an ideal lens and a linear camera.
 LENS_ARRAYS = {"camera_distortion": (np.float64, (2,))}
 CAMERA_ARRAYS = {"camera_lut": (np.float32, (3, 256))}
+#: Version 4: each plane's smooth residual off its homography (:mod:`rtdefocus.residual`),
+#: B-spline control points of (dx, dy) camera px; absent means planes that are exactly flat.
+RESIDUAL_ARRAYS = {"residual_cam": (np.float64, ("n", "gy", "gx", 2))}
 SECTIONS = {"geometry": GEOMETRY_ARRAYS, "radiometry": RADIOMETRY_ARRAYS, "psf": PSF_ARRAYS,
-            "lens": LENS_ARRAYS, "camera": CAMERA_ARRAYS}
+            "lens": LENS_ARRAYS, "camera": CAMERA_ARRAYS, "residual": RESIDUAL_ARRAYS}
 
 
 def _identity_lut() -> np.ndarray:
@@ -103,6 +108,9 @@ class Calibration:
     lens (:func:`~rtdefocus.planar.distort_points`; the homographies, fold and outline
     are in undistorted camera pixels), ``camera_lut`` (3, 256) float32 the camera's inverse
     response, code -> linear light.
+    Residual (optional, format 4): ``residual_cam`` (n, gy, gx, 2) float64, per plane the
+    B-spline control points of a smooth displacement (camera px) added to its homography's
+    camera point (:mod:`rtdefocus.residual`): walls that are planes only nearly.
     ``meta`` holds options, statistics and provenance (JSON-serialisable).
     """
 
@@ -124,12 +132,15 @@ class Calibration:
     pix_wts: np.ndarray | None = None
     camera_distortion: np.ndarray | None = None
     camera_lut: np.ndarray | None = None
+    residual_cam: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     #: What the geometry stage saw (:class:`~rtdefocus.calib.geometry.stage.GeometryDetail`), for its
     #: diagnostics picture; in memory only, never saved.
     geometry_detail: object | None = field(default=None, repr=False, compare=False)
     # display_rect answers per (aspect, margin, outline); not a constructor argument.
     _rect_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    # residual_dense's answer, keyed by the identity of residual_cam; not an argument.
+    _residual_cache: tuple = field(default=(None, None), init=False, repr=False, compare=False)
 
     @classmethod
     def with_fold(cls, *, fold_proj=None, fold_cam=None, **kwargs) -> Calibration:
@@ -228,6 +239,59 @@ class Calibration:
             cache[key] = largest_inscribed_rect(self.lit_polygon_cam, w / h, self.camera_size,
                                                 margin)
         return cache[key]
+
+    def residual_dense(self) -> np.ndarray | None:
+        """(Hp, Wp, 2) float32 camera px: each projector pixel's plane residual (what the warp
+        adds to the homography's camera point), or None when the planes are exactly flat.
+        Made once per ``residual_cam`` array and returned as the same (read-only) array."""
+        if self.residual_cam is None:
+            return None
+        key, dense = self._residual_cache
+        if key is not self.residual_cam:
+            ctrl = check_residual(self.residual_cam, self.n_planes)
+            wp, hp = self.projector_size
+            yy, xx = np.mgrid[0:hp, 0:wp]
+            dense = dense_displacement(ctrl, self.plane_of(xx, yy), self.projector_size)
+            dense.setflags(write=False)
+            self._residual_cache = (self.residual_cam, dense)
+        return dense
+
+    def cam_from_proj(self, x, y) -> np.ndarray:
+        """(N, 2) camera points (undistorted camera px) of projector points (x, y): each
+        point's plane homography plus that plane's residual when there is one."""
+        x = np.asarray(x, np.float64).ravel()
+        y = np.asarray(y, np.float64).ravel()
+        plane = self.plane_of(x, y).astype(np.intp)
+        cx, cy = apply_h_per_plane(self.H_cam_from_proj, plane, x, y)
+        out = np.stack([cx, cy], axis=1)
+        if self.residual_cam is not None:
+            for p in np.unique(plane):
+                sel = plane == p
+                out[sel] += displacement(self.residual_cam[p], x[sel], y[sel], self.projector_size)
+        return out
+
+    def proj_from_cam(self, xc, yc, plane=None, iterations: int = 3) -> tuple[np.ndarray, np.ndarray]:
+        """Projector (x, y) of ideal camera points (xc, yc) (arrays of one shape) on the given
+        planes (default: the camera layout's label of each point): the inverse homography,
+        then, with a residual, fixed-point steps ``x <- H⁻¹(c - d(x))`` (its slope is far below
+        one pixel per pixel: each step gains orders of magnitude)."""
+        xc = np.asarray(xc, np.float64)
+        yc = np.asarray(yc, np.float64)
+        if plane is None:
+            plane = self.layout_cam.label(xc, yc)
+        plane = np.asarray(plane).astype(np.intp)
+        mx, my = apply_h_per_plane(self.H_proj_from_cam, plane, xc, yc)
+        if self.residual_cam is None:
+            return mx, my
+        for p in np.unique(plane):
+            sel = plane == p
+            c = np.stack([xc[sel], yc[sel]], axis=1)
+            x = np.stack([mx[sel], my[sel]], axis=1)
+            for _ in range(iterations):
+                d = displacement(self.residual_cam[p], x[:, 0], x[:, 1], self.projector_size)
+                x = apply_h(self.H_proj_from_cam[p], c - d)
+            mx[sel], my[sel] = x[:, 0], x[:, 1]
+        return mx, my
 
     def kernel_at(self, x: float, y: float) -> np.ndarray:
         """(k, k) float32 unit-sum gather kernel at projector pixel (x, y) (nearest pixel);

@@ -185,6 +185,9 @@ def add_calibrate(sub):
     p.add_argument("--planes", type=_planes, default="auto", metavar="auto|N",
                    help="number of flat surfaces (walls, ceiling) the projection covers; auto "
                    "(default) finds it from the lines' kinks")
+    p.add_argument("--flat", dest="residual", action="store_false",
+                   help="model each surface as an exact plane (no smooth residual for walls that "
+                   "bow or sag a little)")
     p.set_defaults(func=cmd_calibrate)
 
 
@@ -312,7 +315,8 @@ def cmd_calibrate(args) -> int:
     t0 = time.perf_counter()
     try:
         with Progress(args.quiet) as progress:
-            calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes)
+            calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes,
+                              residual=args.residual)
         if hasattr(procam, "drift"):
             _report_hardware(procam, after=True)
     finally:

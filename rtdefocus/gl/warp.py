@@ -18,6 +18,7 @@ from ..errors import DeviceError, InputError, InputTypeError
 from ..planar import MAX_PLANES
 from ..reference.warp import (
     check_image,
+    check_offset,
     check_warp_inputs,
     mip_levels_needed,
     mip_pyramid,
@@ -91,6 +92,11 @@ class GLWarp:
         # The plane of every projector pixel, rows bottom-up as GL counts them (R8UI).
         self.labels = ctx.texture((wp, hp), 1, dtype="u1", alignment=1)
         self.labels.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.program["u_offset"].value = 2
+        # Each pixel's residual in (s, t) units, rows bottom-up (zeros: the homographies alone).
+        self.offset = ctx.texture((wp, hp), 2, dtype="f4")
+        self.offset.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.offset.write(np.zeros((hp, wp, 2), np.float32))
         self.texture = None
         self.fbo = None
         self.n_levels = 0
@@ -98,9 +104,10 @@ class GLWarp:
         self._levels_wanted = 1
 
     # ------------------------------------------------------------------ state
-    def _configure(self, H_cam_from_proj, planes, rect, input_size) -> None:
+    def _configure(self, H_cam_from_proj, planes, rect, input_size, offset=None) -> None:
         H, layout, r, psize = check_warp_inputs(H_cam_from_proj, planes, rect,
                                                 self.projector_size)
+        offset = check_offset(offset, psize)
         M = np.zeros((MAX_PLANES, 3, 3))
         M[:layout.n_planes] = st_from_frag_matrices(H, r, psize)
         # GLSL mat3 is column-major: upload each matrix transposed.
@@ -109,6 +116,11 @@ class GLWarp:
         ys, xs = np.mgrid[0:hp, 0:wp]
         labels = layout.label(xs.astype(np.float64), ys.astype(np.float64)).astype(np.uint8)
         self.labels.write(np.ascontiguousarray(labels[::-1]), alignment=1)
+        st_off = np.zeros((hp, wp, 2), np.float32)
+        if offset is not None:
+            # The reference adds the float32 offset in camera px; the same value, scaled to s, t.
+            st_off = (offset.astype(np.float64) / [r[2], r[3]]).astype(np.float32)
+        self.offset.write(np.ascontiguousarray(st_off[::-1]))
         self.program["u_image_size"].value = tuple(float(v) for v in input_size)
         lod = warp_lod(H, layout, r, input_size, psize, step=LOD_STEP)
         max_lod = float(np.nanmax(lod)) if np.isfinite(lod).any() else 0.0
@@ -134,7 +146,8 @@ class GLWarp:
             self.texture.write(data, level=level, alignment=1)
 
     # ------------------------------------------------------------------ drawing
-    def render_to(self, target, image: np.ndarray, H_cam_from_proj, planes, rect) -> None:
+    def render_to(self, target, image: np.ndarray, H_cam_from_proj, planes, rect,
+                  offset=None) -> None:
         """Draw the warped ``image`` into ``target`` (a moderngl framebuffer of the projector's
         size, e.g. ``ctx.screen`` of a full-screen projector window). Arguments as :meth:`render`."""
         img = check_image(image)
@@ -145,21 +158,24 @@ class GLWarp:
                              "make the window/framebuffer the projector's size")
         input_size = (img.shape[1], img.shape[0])
         key = (np.asarray(H_cam_from_proj, dtype=np.float64).tobytes(), _planes_key(planes),
-               tuple(float(v) for v in np.asarray(rect, dtype=np.float64).reshape(-1)), input_size)
+               tuple(float(v) for v in np.asarray(rect, dtype=np.float64).reshape(-1)), input_size,
+               _offset_key(offset))
         if key != self._key:
             self._key = None          # stays unset if the new geometry is rejected
-            self._configure(H_cam_from_proj, planes, rect, input_size)
+            self._configure(H_cam_from_proj, planes, rect, input_size, offset)
             self._key = key
         self._upload(img)
         target.use()
         self.ctx.viewport = (0, 0, *self.projector_size)
         self.texture.use(0)
         self.labels.use(1)
+        self.offset.use(2)
         self.sampler.use(0)
         self.vao.render(mode=self.ctx.TRIANGLES, vertices=3)
         self.sampler.clear(0)
 
-    def render(self, image: np.ndarray, H_cam_from_proj, planes, rect) -> np.ndarray:
+    def render(self, image: np.ndarray, H_cam_from_proj, planes, rect,
+               offset=None) -> np.ndarray:
         """Warp ``image`` into projector space offscreen.
 
         Parameters
@@ -174,6 +190,9 @@ class GLWarp:
             n = 1).
         rect : (x0, y0, w, h)
             Display rectangle in camera pixels where the input must appear.
+        offset : (Hp, Wp, 2) float32, optional
+            The planes' smooth residual in camera px (``calib.residual_dense()``, an array the
+            caller does not change in place: it is recognised by identity); None: none.
 
         Returns
         -------
@@ -183,15 +202,25 @@ class GLWarp:
         if self.fbo is None:
             self.fbo = self.ctx.framebuffer(
                 color_attachments=[self.ctx.renderbuffer(self.projector_size, components=4)])
-        self.render_to(self.fbo, image, H_cam_from_proj, planes, rect)
+        self.render_to(self.fbo, image, H_cam_from_proj, planes, rect, offset)
         return read_rgb(self.fbo, self.projector_size)
 
     def release(self) -> None:
         """Free the GL objects (the context itself stays)."""
-        for obj in (self.fbo, self.texture, self.labels, self.sampler, self.vao, self.program):
+        for obj in (self.fbo, self.texture, self.labels, self.offset, self.sampler, self.vao,
+                    self.program):
             if obj is not None:
                 obj.release()
-        self.fbo = self.texture = self.labels = None
+        self.fbo = self.texture = self.labels = self.offset = None
+
+
+def _offset_key(offset):
+    """Identity of a residual array (None: none); a calibration's dense residual is made once
+    and not changed, so its identity stands for its content."""
+    if offset is None:
+        return None
+    arr = np.asarray(offset)
+    return (id(offset), arr.__array_interface__["data"][0], arr.shape)
 
 
 def _planes_key(planes):
@@ -267,5 +296,12 @@ def warp_image(calib, image: np.ndarray, rect=None, backend: str = "auto") -> np
             backend = "gl"
     if backend == "gl":
         return _shared_warp(ctx, calib.projector_size).render(
-            img, calib.H_cam_from_proj, calib.layout, rect)
-    return warp_cv2(img, calib.H_cam_from_proj, calib.layout, rect, calib.projector_size)
+            img, calib.H_cam_from_proj, calib.layout, rect, _residual(calib))
+    return warp_cv2(img, calib.H_cam_from_proj, calib.layout, rect, calib.projector_size,
+                    _residual(calib))
+
+
+def _residual(calib):
+    """The calibration's dense residual (None without one, or for an object without it)."""
+    dense = getattr(calib, "residual_dense", None)
+    return dense() if dense is not None else None

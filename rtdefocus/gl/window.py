@@ -428,7 +428,8 @@ class ProjectorWindow:
         with self._current():
             if self._warp is None:
                 self._warp = GLWarp(self.ctx, self.size)
-            self._warped = (image, calib.H_cam_from_proj, calib.layout, rect)
+            self._warped = (image, calib.H_cam_from_proj, calib.layout, rect,
+                            calib.residual_dense())
             self._frame = None
             self._warp.render_to(self.ctx.screen, *self._warped)
             glfw.swap_buffers(self._win)

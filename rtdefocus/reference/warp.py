@@ -4,7 +4,9 @@ Per projector pixel (x, y) (centres at integers): plane p from the plane layout
 (:meth:`rtdefocus.planar.PlaneLayout.label`: with two planes, 0 where
 ``fold_proj · (x, y, 1) < 0``, else 1; always 0 with one plane); camera point
 ``H_cam_from_proj[p] @ (x, y, 1)``
-(dehomogenised); input pixel through the display rect (x0, y0, w, h) for an input of W×H::
+(dehomogenised), plus the plane's smooth residual at that pixel when the calibration has one
+(``offset``: (Hp, Wp, 2) float32 camera px, :func:`rtdefocus.residual.dense_displacement`);
+input pixel through the display rect (x0, y0, w, h) for an input of W×H::
 
     u = (xc - x0 + 0.5) * W / w - 0.5          v = (yc - y0 + 0.5) * H / h - 0.5
 
@@ -15,7 +17,8 @@ to black). The output is uint8 in the input's encoding (no linearisation).
 Minification — the rule both implementations follow exactly:
 
 * level of detail per pixel, from the analytic Jacobian of that pixel's own plane mapping (not
-  from screen-space differences, which jump at the fold and would leave a seam):
+  from screen-space differences, which jump at the fold and would leave a seam; the
+  residual's own slope, a few pixels over hundreds, is left out of it):
   ``lod = log2(max(|∂(u, v)/∂x|, |∂(u, v)/∂y|))`` in input pixels per projector pixel
   (the OpenGL specification's ρ);
 * mip levels are used only when some projector pixel has ``lod > 0``; then level L + 1 is level L
@@ -36,7 +39,7 @@ import numpy as np
 from ..errors import InputError, InputTypeError
 from ..planar import MAX_PLANES, PlaneLayout
 
-__all__ = ["check_image", "check_warp_inputs", "mip_levels_needed", "mip_pyramid", "warp_cv2",
+__all__ = ["check_image", "check_offset", "check_warp_inputs", "mip_levels_needed", "mip_pyramid", "warp_cv2",
            "warp_lod", "warp_maps"]
 
 
@@ -136,9 +139,22 @@ def check_image(image) -> np.ndarray:
     return img
 
 
-def _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step=1):
+def check_offset(offset, projector_size) -> np.ndarray | None:
+    """``offset`` as (Hp, Wp, 2) float32 (None stays None); InputError naming the fix."""
+    if offset is None:
+        return None
+    wp, hp = projector_size
+    off = np.asarray(offset)
+    if off.shape != (hp, wp, 2) or not np.isfinite(off).all():
+        raise InputError(f"offset must be a finite (Hp, Wp, 2) = ({hp}, {wp}, 2) array of camera px "
+                         f"(calib.residual_dense()); got shape {off.shape}")
+    return off.astype(np.float32, copy=False)
+
+
+def _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step=1, offset=None):
     """Per projector pixel: u, v (input px), z (homogeneous coordinate) and lod, all float64.
-    With ``step`` > 1 only every step-th row and column (and the last ones) are evaluated."""
+    With ``step`` > 1 only every step-th row and column (and the last ones) are evaluated.
+    ``offset`` (Hp, Wp, 2) camera px is added to each pixel's camera point (not to the lod)."""
     H, layout, (x0, y0, w, h), (wp, hp) = check_warp_inputs(H_cam_from_proj, planes, rect,
                                                             projector_size)
     W, Hh = (int(v) for v in input_size)
@@ -150,11 +166,17 @@ def _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step=1)
     X = m[0][0] * xs + m[0][1] * ys + m[0][2]
     Y = m[1][0] * xs + m[1][1] * ys + m[1][2]
     Z = m[2][0] * xs + m[2][1] * ys + m[2][2]
+    offset = check_offset(offset, (wp, hp))
     with np.errstate(divide="ignore", invalid="ignore"):
         xc, yc = X / Z, Y / Z
         sx, sy = W / w, Hh / h
-        u = (xc - x0 + 0.5) * sx - 0.5
-        v = (yc - y0 + 0.5) * sy - 0.5
+        if offset is not None:
+            sub = offset[np.ix_(rows.astype(np.intp), cols.astype(np.intp))].astype(np.float64)
+            u = (xc + sub[..., 0] - x0 + 0.5) * sx - 0.5
+            v = (yc + sub[..., 1] - y0 + 0.5) * sy - 0.5
+        else:
+            u = (xc - x0 + 0.5) * sx - 0.5
+            v = (yc - y0 + 0.5) * sy - 0.5
         # d(xc)/dx = (H00 - xc H20) / Z etc.: the analytic Jacobian of this plane's homography.
         dudx = (m[0][0] - xc * m[2][0]) / Z * sx
         dvdx = (m[1][0] - yc * m[2][0]) / Z * sy
@@ -165,7 +187,7 @@ def _geometry(H_cam_from_proj, planes, rect, input_size, projector_size, step=1)
     return u, v, Z, lod
 
 
-def warp_maps(H_cam_from_proj, planes, rect, input_size, projector_size):
+def warp_maps(H_cam_from_proj, planes, rect, input_size, projector_size, offset=None):
     """Where each projector pixel samples the input.
 
     Parameters
@@ -181,6 +203,9 @@ def warp_maps(H_cam_from_proj, planes, rect, input_size, projector_size):
         (W, H) of the input image.
     projector_size : (int, int)
         (Wp, Hp) of the output.
+    offset : (Hp, Wp, 2) float32, optional
+        Camera px added to each pixel's camera point: the planes' smooth residual
+        (``calib.residual_dense()``); None: the homographies alone.
 
     Returns
     -------
@@ -192,7 +217,8 @@ def warp_maps(H_cam_from_proj, planes, rect, input_size, projector_size):
         Outside it the warp is black, except for the one-input-pixel fade of the bilinear
         border (``BORDER_CONSTANT``).
     """
-    u, v, z, _ = _geometry(H_cam_from_proj, planes, rect, input_size, projector_size)
+    u, v, z, _ = _geometry(H_cam_from_proj, planes, rect, input_size, projector_size,
+                           offset=offset)
     W, Hh = input_size
     ok = (z > 0) & np.isfinite(u) & np.isfinite(v)
     valid = ok & (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= Hh - 0.5)
@@ -251,7 +277,8 @@ def _bilinear(level: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def warp_cv2(image: np.ndarray, H_cam_from_proj, planes, rect, projector_size) -> np.ndarray:
+def warp_cv2(image: np.ndarray, H_cam_from_proj, planes, rect, projector_size,
+             offset=None) -> np.ndarray:
     """Warp ``image`` into projector space: the reference twin of :class:`rtdefocus.gl.warp.GLWarp`.
 
     Parameters
@@ -267,6 +294,8 @@ def warp_cv2(image: np.ndarray, H_cam_from_proj, planes, rect, projector_size) -
         Display rectangle in camera pixels where the input must appear.
     projector_size : (int, int)
         (Wp, Hp).
+    offset : (Hp, Wp, 2) float32, optional
+        The planes' smooth residual in camera px (``calib.residual_dense()``); None: none.
 
     Returns
     -------
@@ -275,7 +304,8 @@ def warp_cv2(image: np.ndarray, H_cam_from_proj, planes, rect, projector_size) -
     """
     img = check_image(image)
     Hh, W = img.shape[:2]
-    u, v, z, lod = _geometry(H_cam_from_proj, planes, rect, (W, Hh), projector_size)
+    u, v, z, lod = _geometry(H_cam_from_proj, planes, rect, (W, Hh), projector_size,
+                             offset=offset)
     ok = (z > 0) & np.isfinite(u) & np.isfinite(v)
     u = np.where(ok, u, -2.0)
     v = np.where(ok, v, -2.0)

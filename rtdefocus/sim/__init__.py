@@ -17,6 +17,7 @@ Modules, one concept each:
   between two captures, the truth following;
 * :mod:`~rtdefocus.sim.timeline` — :class:`Timeline`: such changes at given times of a clip;
 * :mod:`~rtdefocus.sim.truth` — :class:`GroundTruth`;
+* :mod:`~rtdefocus.sim.texture` — the "fabric" wall texture;
 * :mod:`~rtdefocus.sim.oracle` — :func:`oracle_calibration`, a Calibration from the truth;
 * :mod:`~rtdefocus.sim.patterns` — :data:`PATTERNS`, :func:`test_pattern`.
 """

@@ -82,9 +82,14 @@ def oracle_calibration(procam):
     planes = np.zeros(len(levels), np.int32)
     use = np.abs(q[None] - levels[:, None, None]) < 1.0              # (L, Hp, Wp)
     for i in range(len(levels)):
-        counts = np.bincount(plane_map[use[i]], minlength=2)
-        planes[i] = int(np.argmax(counts))
-        dist = np.where(plane_map == planes[i], np.abs(q - levels[i]), np.inf)
+        labels = plane_map[use[i]]
+        labels = labels[labels >= 0]        # -1: a far wall through a gap, no plane
+        if labels.size:
+            planes[i] = int(np.argmax(np.bincount(labels, minlength=2)))
+            dist = np.where(plane_map == planes[i], np.abs(q - levels[i]), np.inf)
+        else:                               # a radius only the far wall has
+            planes[i] = 0
+            dist = np.abs(q - levels[i])
         yy, xx = np.unravel_index(int(np.argmin(dist)), dist.shape)
         points[i] = (xx, yy)
 

@@ -53,6 +53,19 @@ class Scene:
         coloured poster and wood-grain-like bands on the right one; see ``VirtualProCam``).
     ambient : ambient irradiance relative to a full-on projector when ``VirtualProCam`` is not
         given one (None: its default 0.02).
+    bow : per wall (plane order), how far its middle stands off its plane (m, positive towards
+        the projector): a wall that is a plane only nearly. The displacement is along the
+        wall's normal, zero at the fold and at the wall's far edges and smooth in between
+        (``bow_shape``); () or zeros: flat walls. Not for "u" and "corner".
+    bow_shape : "cylinder" (a panel bent about a vertical axis: ``sin(pi s)`` across the wall,
+        constant down it) or "pillow" (a sheet held at its edges that sags or puffs:
+        ``sin(pi s) sin(pi y)``), with s and y the wall's extent over the frame scaled to 0..1.
+    gap_x_frac : "concave" / "convex" only: the right wall ends where the projector's centre
+        row at this fraction of the width meets it, and a far wall (``far_depth``, square to
+        the projector axis) shows through the gap beside it; None: no gap.
+    far_depth : depth (m) of that far wall along the projector axis.
+    exposure_gain : factor on the camera's auto exposure (which puts a white frame's peak at
+        95 % of full scale); above 1 the brightest captures clip.
     """
 
     kind: str
@@ -71,6 +84,11 @@ class Scene:
         (0.86, 0.85, 0.81), (0.74, 0.76, 0.79))
     texture: str = "none"
     ambient: float | None = None
+    bow: tuple[float, ...] = ()
+    bow_shape: str = "cylinder"
+    gap_x_frac: float | None = None
+    far_depth: float = 4.5
+    exposure_gain: float = 1.0
     description: str = ""
 
 
@@ -98,11 +116,48 @@ PRESETS: dict[str, Scene] = {
                             albedo=((0.86, 0.85, 0.81), (0.90, 0.90, 0.88), (0.74, 0.76, 0.79)),
                             description="projector aimed up into a room corner: two walls and the "
                             "ceiling, the three folds meeting at a vertex inside the frame"),
+    "bowed": Scene("concave", bow=(0.0, -0.012), bow_shape="cylinder",
+                   description="cubicle whose right wall is a fabric panel bent back by 1.2 cm "
+                   "(about 1 % of its width) in its middle"),
+    "sagging": Scene("concave", bow=(0.02, 0.04), bow_shape="pillow",
+                     description="cubicle of two sheets held at their edges, pillowed towards the "
+                     "room by 2 cm (left) and 4 cm (right) in their middles"),
+    "gap": Scene("concave", gap_x_frac=0.86, far_depth=4.5,
+                 description="cubicle whose right wall ends short of the frame: a far wall 4.5 m "
+                 "away shows through the gap beside it"),
+    "clipping": Scene("concave", exposure_gain=1.6,
+                      description="cubicle with the camera's exposure 1.6 times too long: white "
+                      "frames and bright dots clip"),
 }
 
 
 #: Scene kinds that are rooms seen from inside: whole-plane walls, any number of folds.
 ROOM_KINDS = ("u", "corner")
+
+
+@dataclass(frozen=True)
+class Bow:
+    """A wall's smooth displacement off its plane along its normal n (m, + towards n).
+
+    ``amplitude · f(u) · g(v)`` with u = (s - s0) / (s1 - s0), v = (y - y0) / (y1 - y0) clipped
+    to [0, 1], s and y the point's coordinates along ``axes`` from ``origin``; f(u) = sin(pi u),
+    g(v) = sin(pi v) for a "pillow" and 1 for a "cylinder"."""
+    amplitude: float
+    shape: str
+    origin: np.ndarray     # (3,) world
+    axes: np.ndarray       # (2, 3) in-plane unit axes (s, y), both square to the wall's normal
+    s_range: tuple[float, float]
+    y_range: tuple[float, float]
+
+    def offset(self, pts: np.ndarray) -> np.ndarray:
+        """Displacement (N,) at world points (3, N) (their in-plane coordinates are used)."""
+        s, y = self.axes @ (pts - self.origin[:, None])
+        u = np.clip((s - self.s_range[0]) / (self.s_range[1] - self.s_range[0]), 0.0, 1.0)
+        out = self.amplitude * np.sin(math.pi * u)
+        if self.shape == "pillow":
+            v = np.clip((y - self.y_range[0]) / (self.y_range[1] - self.y_range[0]), 0.0, 1.0)
+            out = out * np.sin(math.pi * v)
+        return out
 
 
 @dataclass(frozen=True)
@@ -112,6 +167,9 @@ class _Wall:
     origin: np.ndarray   # a point on the fold (world)
     e: np.ndarray | None  # in-plane direction away from the fold; None = whole plane
     tex: np.ndarray | None = None  # (2, 3) in-plane texture axes (s, y); None: e (or n × up), world y
+    extent: float = math.inf      # largest distance along e from the fold (a wall that ends)
+    bow: Bow | None = None        # displacement off the plane; None: flat
+    far: bool = False             # a far wall seen through a gap, no plane of the set-up
 
 
 def rot_z(deg: float) -> np.ndarray:
@@ -143,16 +201,37 @@ def cast_rays(origin: np.ndarray, dirs: np.ndarray, walls: list[_Wall]) -> tuple
         denom = w.n @ dirs
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (w.d - w.n @ origin) / denom
+            if w.bow is not None:
+                t = _bowed_hit(origin, dirs, w, t, denom)
         ok = np.isfinite(t) & (t > 1e-9)
         if w.e is not None:
             # Position along the wall away from the fold; a tiny tolerance so the fold itself
             # belongs to both walls.
             along = (origin - w.origin) @ w.e + t * (w.e @ dirs)
-            ok &= along >= -1e-9
+            ok &= (along >= -1e-9) & (along <= w.extent)
         better = ok & (t < best_t)
         best_t[better] = t[better]
         best_w[better] = i
     return best_t, best_w
+
+
+def _bowed_hit(origin: np.ndarray, dirs: np.ndarray, w: _Wall, t: np.ndarray,
+               denom: np.ndarray) -> np.ndarray:
+    """Ray parameters (N,) where rays meet the bowed wall ``w``, from their hits ``t`` on its
+    plane: fixed-point steps onto the plane shifted by the bow at the last hit. The bow's
+    slope (a few cm over a metre) times the rays' obliquity is well below 1, so each step
+    shrinks the error at least tenfold; the shadow test needs it to 1e-9 of the distance."""
+    base = w.d - w.n @ origin
+    fin = np.isfinite(t)
+    tt = np.where(fin, t, 0.0)
+    for _ in range(60):
+        h = w.bow.offset(origin[:, None] + tt * dirs)
+        new = np.where(fin, (base + h) / np.where(fin, denom, 1.0), 0.0)
+        step = float(np.max(np.abs(new - tt))) if new.size else 0.0
+        tt = new
+        if step < 1e-13:
+            break
+    return np.where(fin, tt, t)
 
 
 def line_through(p1: np.ndarray, p2: np.ndarray, neg_point: np.ndarray) -> np.ndarray:
@@ -245,7 +324,62 @@ def scene_walls(sc: Scene, K_proj: np.ndarray, R_proj: np.ndarray,
     else:
         raise InputError("Scene.kind must be 'concave', 'convex', 'flat', 'u' or 'corner'; got "
                          f"{sc.kind!r}")
+    if sc.gap_x_frac is not None:
+        walls = _with_gap(sc, walls, ray((sc.gap_x_frac * wp) - 0.5, (hp - 1) / 2.0), up)
+    if any(b != 0.0 for b in sc.bow):
+        walls = _with_bows(sc, walls, ray, size)
     return walls, fold_pt
+
+
+def _with_gap(sc: Scene, walls: list[_Wall], r: np.ndarray, up: np.ndarray) -> list[_Wall]:
+    """The right wall cut where the ray ``r`` (world) meets it, and the far wall behind."""
+    if sc.kind not in ("concave", "convex"):
+        raise InputError(f"Scene.gap_x_frac needs a 'concave' or 'convex' scene; got {sc.kind!r}")
+    right = walls[1]
+    hit = r * ((right.d) / (right.n @ r))
+    extent = float(right.e @ (hit - right.origin))
+    if not extent > 0 or not sc.far_depth > 0:
+        raise InputError(f"Scene.gap_x_frac={sc.gap_x_frac} puts the gap left of the fold (or "
+                         f"far_depth={sc.far_depth} is not > 0); use a fraction right of "
+                         f"fold_x_frac={sc.fold_x_frac}")
+    cut = _Wall(n=right.n, d=right.d, origin=right.origin, e=right.e, extent=extent)
+    far = _make_wall(np.array([0.0, 0.0, sc.far_depth]), np.array([1.0, 0.0, 0.0]), up, half=False)
+    return [walls[0], cut, _Wall(n=far.n, d=far.d, origin=far.origin, e=None, far=True)]
+
+
+def _with_bows(sc: Scene, walls: list[_Wall], ray, size: tuple[int, int]) -> list[_Wall]:
+    """The walls with ``sc.bow``'s displacements, each spanning the wall's extent over the
+    projector frame (from the fold for a half wall, so the fold stays straight)."""
+    if sc.kind in ROOM_KINDS:
+        raise InputError(f"Scene.bow is for 'concave', 'convex' and 'flat' scenes; got {sc.kind!r}")
+    if sc.bow_shape not in ("cylinder", "pillow"):
+        raise InputError(f"Scene.bow_shape must be 'cylinder' or 'pillow'; got {sc.bow_shape!r}")
+    n_walls = sum(not w.far for w in walls)
+    if len(sc.bow) != n_walls:
+        raise InputError(f"Scene.bow needs one displacement per wall ({n_walls}); got {sc.bow!r}")
+    wp, hp = size
+    gx, gy = np.meshgrid(np.linspace(-0.5, wp - 0.5, 81), np.linspace(-0.5, hp - 0.5, 61))
+    dirs = np.stack([ray(x, y) for x, y in zip(gx.ravel(), gy.ravel(), strict=True)], axis=1)
+    t, which = cast_rays(np.zeros(3), dirs, walls)
+    up = np.array([0.0, 1.0, 0.0])
+    out = list(walls)
+    for i, amp in enumerate(sc.bow):
+        if amp == 0.0:
+            continue
+        w = walls[i]
+        sel = which == i
+        if sel.sum() < 4:
+            raise InputError(f"Scene.bow: wall {i} is not seen by the projector; leave its bow 0")
+        pts = t[sel] * dirs[:, sel]
+        e = w.e if w.e is not None else np.cross(up, w.n)
+        axes = np.stack([e, up])
+        s, y = axes @ (pts - w.origin[:, None])
+        s_range = (0.0, float(min(s.max(), w.extent))) if w.e is not None else (
+            float(s.min()), float(s.max()))
+        bow = Bow(float(amp), sc.bow_shape, w.origin.copy(), axes, s_range,
+                  (float(y.min()), float(y.max())))
+        out[i] = _Wall(n=w.n, d=w.d, origin=w.origin, e=w.e, tex=w.tex, extent=w.extent, bow=bow)
+    return out
 
 
 @dataclass(frozen=True)

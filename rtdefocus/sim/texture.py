@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 TEXTURES = ("none", "faint", "fabric")
+FAR_ALBEDO = 0.6            # albedo of a far wall seen through a gap (a grey one)
 
 
 def fabric_factor(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
@@ -33,9 +34,12 @@ def fabric_factor(s: np.ndarray, y: np.ndarray, wall: np.ndarray) -> np.ndarray:
 def wall_albedo(base_albedo, walls, pts_w: np.ndarray, wall: np.ndarray, *, amplitude: float,
                 texture: str, phase: np.ndarray) -> np.ndarray:
     """RGB albedo (3, N) of world points ``pts_w`` (3, N) on ``wall`` (index into ``walls``,
-    -1 = none: albedo 0): each wall's ``base_albedo`` times a faint smooth pattern of relative
+    -1 = none: albedo 0): each wall's ``base_albedo`` (walls past its rows, a far wall seen
+    through a gap: :data:`FAR_ALBEDO`) times a faint smooth pattern of relative
     ``amplitude`` (phases ``phase``), and the "fabric" ``texture``'s weave, grain and poster."""
     base = np.asarray(base_albedo, dtype=np.float64)
+    if len(walls) > len(base):
+        base = np.vstack([base, np.full((len(walls) - len(base), 3), FAR_ALBEDO)])
     out = np.zeros((3, wall.size))
     hit = wall >= 0
     out[:, hit] = base[wall[hit]].T

@@ -20,7 +20,12 @@ class GroundTruth:
     radius_rgb : (3, Hp, Wp) float32, blur radius per channel (radius_map × chromatic scale).
     plane_map : (Hp, Wp) int8, wall seen by each projector pixel, 0..n_planes-1, numbered by
         their centroid x in the projector (ties within 5 % of the width by centroid y); for two
-        walls the left one is 0; all 0 for ``flat``.
+        walls the left one is 0; all 0 for ``flat``; -1 where a far wall shows through a gap
+        (no plane of the set-up).
+    cam_from_proj : (Hp, Wp, 2) float32, the ideal camera pixel (x, y) of the surface point
+        each projector pixel centre lights: the exact camera <- projector map, which the
+        homographies only approximate where a wall bows (``Scene.bow``) and do not give on a
+        far wall.
     depth_map : (Hp, Wp) float32, depth of that surface point along the projector axis (m).
     fold_proj, fold_cam : (3,) float64 line ``a x + b y + c = 0``, ``a² + b² = 1``, plane 0 where
         it is negative, for two planes; None for one (``flat``) or three and more.
@@ -30,13 +35,15 @@ class GroundTruth:
         when ``|b| > |a|``), listed in order of their plane pair; ``folds_cam`` are the same
         folds in ideal camera pixels, with the same planes on the same sides.
     fold_planes : (m, 2) int64, [plane on the fold's negative side, plane on its positive side].
-    H_cam_from_proj : (n_planes, 3, 3) float64 plane-induced homographies (H[2, 2] = 1).
+    H_cam_from_proj : (n_planes, 3, 3) float64 plane-induced homographies (H[2, 2] = 1); of
+        each wall's plane, which a bowed wall leaves by its bow.
     albedo_proj : (Hp, Wp, 3) float32, α(x): camera linear light added by a full-on projector
         pixel in focus (exposure × albedo × irradiance shading).
     ambient_proj : (Hp, Wp, 3) float32, Γ(x): camera linear light with the projector black.
     K_proj, K_cam : (3, 3) float64 intrinsics; R_cam_from_proj (3, 3), t_cam_from_proj (3,)
         so that X_cam = R X_proj + t (m).
-    planes_proj : (n_planes, 4) float64 (n, d) with n · X_proj = d, |n| = 1, per wall.
+    planes_proj : (n_planes, 4) float64 (n, d) with n · X_proj = d, |n| = 1, per wall (its
+        plane, for a bowed one).
     focus_distance : m; blur_scale : A·f in px·m, so r = blur_scale·|1/focus_distance − 1/D|.
     chromatic : per-channel scale of r; aperture : "disc" | "hex".
     projector_gamma, camera_gamma, exposure : response parameters (see VirtualProCam).
@@ -47,7 +54,9 @@ class GroundTruth:
         ``H_cam_from_proj`` and ``fold_cam`` are in ideal (undistorted) camera pixels.
     exposure_drift : the camera gain's relative change per capture.
     extra : ``camera_in_frame`` (Hc, Wc) bool, camera pixels that see a point lit by the
-        projector frame; ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
+        projector frame; ``shaped``, whether a wall bows or a far wall shows (so
+        ``cam_from_proj`` and not the homographies is the true map);
+        ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
         (-1: none), numbered like ``plane_map``; ``margin``, projector px simulated beyond the frame edge.
     """
 
@@ -80,6 +89,7 @@ class GroundTruth:
     folds_cam: np.ndarray | None = None
     fold_planes: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
+    cam_from_proj: np.ndarray | None = None
 
     def kernel_at(self, x: float, y: float, size: int | None = None, channel: int = 1) -> np.ndarray:
         """True gather kernel at projector pixel (x, y) (rounded to the nearest pixel).

@@ -68,7 +68,8 @@ class VirtualProCam(SetupChanges):
     Parameters
     ----------
     preset : one of :data:`PRESETS` ("cubicle", "pillar", "flat", "tilted", "offcenter",
-        "fabric", "u_cubicle", "corner_ceiling") or a :class:`Scene`.
+        "fabric", "u_cubicle", "corner_ceiling"; walls that are planes only nearly: "bowed",
+        "sagging", "gap"; a camera exposed too long: "clipping") or a :class:`Scene`.
     projector_size, camera_size : (width, height) in pixels.
     noise : standard deviation of the camera's Gaussian noise, as a fraction of full scale
         (linear light, before the camera response); default 0.006. The options below that
@@ -103,7 +104,8 @@ class VirtualProCam(SetupChanges):
         (undistorted) camera pixels.
 
     A preset named ``"webcam"`` (or ``"webcam_<scene>"``: ``webcam_pillar``, ``webcam_tilted``,
-    ``webcam_offcenter``, ``webcam_flat``, ``webcam_u_cubicle``, ...) is an ordinary webcam in a lit office
+    ``webcam_offcenter``, ``webcam_flat``, ``webcam_u_cubicle``, ``webcam_bowed``,
+    ``webcam_sagging``, ...) is an ordinary webcam in a lit office
     (:data:`WEBCAM`): sRGB camera, projector gamma 2.2, 5 % ambient, 5 % wall texture, noise
     2/255, a slightly chromatic hexagonal aperture and k1 = -0.05. Arguments that are given
     (not None) override the preset's.
@@ -173,6 +175,8 @@ class VirtualProCam(SetupChanges):
         else:
             raise InputError(f"texture must be one of {TEXTURES}, True/False or an amplitude in "
                              f"[0, 0.5]; got {texture!r}")
+        if not scene.exposure_gain > 0:
+            raise InputError(f"Scene.exposure_gain must be > 0; got {scene.exposure_gain}")
         if noise < 0 or ambient < 0:
             raise InputError(f"noise and ambient must be >= 0; got {noise}, {ambient}")
         check_choice(camera_response, ("gamma", "srgb"), "camera_response")
@@ -231,6 +235,9 @@ class VirtualProCam(SetupChanges):
         walls, self._fold_point = scene_walls(sc, self.K_proj, self.R_proj, self.projector_size)
         self._walls = walls
         self._room = sc.kind in ROOM_KINDS
+        self._shaped = any(w.bow is not None or w.far for w in walls)
+        #: walls that are planes of the set-up (a far wall seen through a gap is not one).
+        self._n_walls = sum(not w.far for w in walls)
         if self._room and len(sc.albedo) < len(walls):
             raise InputError(f"scene of kind {sc.kind!r} needs {len(walls)} albedos; got {len(sc.albedo)}")
 
@@ -272,7 +279,9 @@ class VirtualProCam(SetupChanges):
     def _build_projector_space(self) -> None:
         wp, hp = self.projector_size
         # Margin of projector space beyond the frame: blurred light spills over the frame edge.
-        if self._room:     # r is monotonic in 1/D: its extremes are at the depth extremes
+        if self._room or self._shaped:
+            # r is monotonic in 1/D (the focus lies in front of every wall): its extremes are
+            # at the depth extremes; a bowed wall or a far wall may hold them off the corners.
             r_max = float(self._radius_of(np.array(self._depth_range)).max())
         else:
             r_max = float(self._radius_of(self._depths_of(np.array(
@@ -333,9 +342,8 @@ class VirtualProCam(SetupChanges):
 
     def _albedo(self, pts_w: np.ndarray, wall: np.ndarray) -> np.ndarray:
         """RGB albedo (3, N) of world points (3, N) on the given walls (0 where wall = -1)."""
-        return wall_albedo(self.scene.albedo, self._walls, pts_w, wall,
-                           amplitude=self.texture_amplitude, texture=self.texture,
-                           phase=self._tex_phase)
+        return wall_albedo(self.scene.albedo, self._walls, pts_w, wall, amplitude=self.texture_amplitude,
+                           texture=self.texture, phase=self._tex_phase)
 
     def _place_camera(self) -> None:
         """The camera's pose and intrinsics (``_cam_center``, ``R_cam``, ``t_cam``, ``K_cam``)."""
@@ -412,7 +420,7 @@ class VirtualProCam(SetupChanges):
         if self.exposure is None:
             # Auto-exposure: a full white frame peaks at 95 % of full scale (no clipping).
             peak = float(np.max(self._pad_albedo * (self._pad_shade[..., None] + self.ambient)))
-            self.exposure = 0.95 / peak
+            self.exposure = 0.95 / peak * sc.exposure_gain
         self._cam_albedo = (self.exposure * self._cam_albedo).astype(np.float32)
 
     def _build_truth(self) -> None:
@@ -424,7 +432,7 @@ class VirtualProCam(SetupChanges):
         t_cp = self.t_cam + self.R_cam @ c
         planes, hs = [], []
         Kp_inv = np.linalg.inv(self.K_proj)
-        for w in self._walls:
+        for w in self._walls[:self._n_walls]:
             n_p = self.R_proj @ w.n
             d_p = float(w.d - w.n @ c)
             planes.append(np.concatenate([n_p, [d_p]]))
@@ -433,10 +441,15 @@ class VirtualProCam(SetupChanges):
         fold_proj, fold_cam, folds_proj, folds_cam, fold_planes = self._folds()
         shade = self._pad_shade[fr]
         alb = self._pad_albedo[fr]
+        # The far wall seen through a gap is no plane of the set-up: -1 in both plane maps.
+        plane_map = self._pad_plane[fr].copy()
+        plane_map[plane_map >= self._n_walls] = -1
+        cam_plane = self._cam_plane.copy()
+        cam_plane[cam_plane >= self._n_walls] = -1
         self.truth = GroundTruth(
             radius_map=self._pad_radius[1][fr].copy(),
             radius_rgb=self._pad_radius[:, fr[0], fr[1]].copy(),
-            plane_map=self._pad_plane[fr].copy(),
+            plane_map=plane_map, cam_from_proj=self._cam_from_proj(),
             depth_map=self._pad_depth[fr].astype(np.float32),
             fold_proj=fold_proj, fold_cam=fold_cam,
             folds_proj=folds_proj, folds_cam=folds_cam, fold_planes=fold_planes,
@@ -454,8 +467,17 @@ class VirtualProCam(SetupChanges):
             camera_response_kind=self.camera_response, distortion=self.distortion,
             exposure_drift=self.exposure_drift,
             extra={"margin": m, "camera_in_frame": self._cam_in_frame,
-                   "camera_plane_map": self._cam_plane},
+                   "camera_plane_map": cam_plane, "shaped": self._shaped},
         )
+
+    def _cam_from_proj(self) -> np.ndarray:
+        """(Hp, Wp, 2) float32: the ideal camera pixel (x, y) of the surface point each
+        projector pixel centre lights (exact for bowed walls, where the homographies are not)."""
+        wp, hp = self.projector_size
+        gx, gy = np.meshgrid(np.arange(wp, dtype=np.float64), np.arange(hp, dtype=np.float64))
+        _, _, pts, _ = self._cast_projector(np.stack([gx.ravel(), gy.ravel()]))
+        xc = self.K_cam @ (self.R_cam @ pts + self.t_cam[:, None])
+        return np.stack([xc[0] / xc[2], xc[1] / xc[2]], axis=-1).reshape(hp, wp, 2).astype(np.float32)
 
     def _folds(self):
         """fold_proj, fold_cam (the one fold of two planes, plane 0 negative; else None) and
@@ -477,9 +499,9 @@ class VirtualProCam(SetupChanges):
                 xi = 0.5 * (xa + xb) + 0.01 * f.side_i    # 1 cm into wall i
                 folds.append((line_through(proj(xa), proj(xb), proj(xi)),
                               line_through(cam(xa), cam(xb), cam(xi)), [f.i, f.j]))
-            if len(self._walls) == 2 and folds:
+            if self._n_walls == 2 and folds:
                 fold_proj, fold_cam = folds[0][0], folds[0][1]
-        elif len(self._walls) == 2:
+        elif self._n_walls == 2:
             f0 = self._fold_point
             p_hi, p_lo = f0 + [0.0, -1.0, 0.0], f0 + [0.0, 1.0, 0.0]
             inside0 = f0 + 0.3 * self._walls[0].e + [0.0, 0.0, 0.0]

@@ -91,9 +91,22 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
         ty = y + 22 + 22 * (k // 2) if k % 2 else y + h - 10 - 22 * (k // 2)
         cv2.putText(img, f"{aw}:{ah}  {w}x{h} at ({x}, {y})", (x + 6, ty), cv2.FONT_HERSHEY_SIMPLEX,
                     0.6, col, 1, cv2.LINE_AA)
-    g = calib.meta.get("geometry", {})
-    cap = (f"{calib.n_planes} plane(s)  RMS {g.get('rms_px')} px  fold disagreement "
-           f"{g.get('fold_disagreement_px')} px  {g.get('captures')} captures")
+    cap = caption(calib)
     cv2.putText(img, cap, (10, hc - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
     cv2.putText(img, cap, (10, hc - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
     return img
+
+
+def caption(calib: Calibration) -> str:
+    """The picture's caption: planes, RMS, fold disagreement, captures, and for planes with a
+    residual field how far each bows off its plane (camera px)."""
+    g = calib.meta.get("geometry", {})
+    cap = (f"{calib.n_planes} plane(s)  RMS {g.get('rms_px')} px  fold disagreement "
+           f"{g.get('fold_disagreement_px')} px  {g.get('captures')} captures")
+    res = g.get("residual") or {}
+    if res.get("kept"):
+        bows = ", ".join(f"{v:.1f}" for v in res.get("max_px", []))
+        cap += f"  bow off the planes {bows} px"
+        if "nearly_flat" in g:
+            cap += " (nearly flat fit)"
+    return cap

@@ -14,7 +14,11 @@ run it again on corrected detections (lens distortion). Steps (DESIGN.md §4, do
    its folds (camera layout), normalised DLT in RANSAC and LM (:func:`~.homography.fit_homography`).
 5. **Projector folds**: each camera fold's visible part mapped back through both of its planes'
    inverse homographies (:func:`~.fold.fold_to_projector`), which must agree.
-6. **Numbering**: planes by the projector-space centroid x (ties within 5 % of the width by
+6. **Residual** (``residual=True``): per plane, a smooth displacement (:mod:`rtdefocus.residual`)
+   fitted to what its crossings leave off its homography, for walls that are planes only
+   nearly; the projector folds of step 5 then map through the full map (homography plus
+   residual).
+7. **Numbering**: planes by the projector-space centroid x (ties within 5 % of the width by
    centroid y); two planes keep plane 0 on the negative side of the fold, oriented by
    :func:`~.planar.canonical_line`. ``fold_planes[j]`` = [negative side, positive side], the
    same planes on the same sides in the camera.
@@ -32,11 +36,15 @@ from ...errors import CalibrationError, InputError
 from ...planar import (
     MAX_PLANES,
     PlaneLayout,
+    apply_h,
     canonical_line,
     line_eval,
     lit_polygon,
+    normalise_line,
     segment_in_mask,
+    tls_line,
 )
+from ...residual import displacement, fit_residual, proj_from_cam
 from .fold import Kink, find_kinks, fit_fold, fold_to_projector
 from .homography import fit_homography, line_crossings
 from .planes import (
@@ -57,6 +65,11 @@ __all__ = ["GeometryDetail", "fit_geometry", "check_planes_option"]
 #: Largest distance (projector px) between a fold's two images (one per plane) before the
 #: result is refused.
 MAX_FOLD_DISAGREEMENT = 3.0
+#: A plane's residual field larger than this (camera px) somewhere in the frame is reported: the
+#: wall is then far from a plane (or two surfaces were taken for one).
+MAX_RESIDUAL_PX = 20.0
+#: A residual field within this (camera px) everywhere is the crossings' noise: none is kept.
+MIN_RESIDUAL_PX = 0.5
 
 
 @dataclass
@@ -74,6 +87,7 @@ class GeometryDetail:
     grid_ix, grid_iy : (n,) int column / row of each crossing on the grid of projected lines.
     fold_segments_cam : per fold, (2, 2) ends of its visible part in the camera (or None).
     candidates : per RANSAC candidate, its evidence (dict) and ``H_cam_from_proj``.
+    residual_inliers : (n,) bool the crossings the residual fields fit (None without them).
     """
 
     detection: LineDetection
@@ -89,6 +103,7 @@ class GeometryDetail:
     grid_iy: np.ndarray | None = None
     fold_segments_cam: list = field(default_factory=list)
     candidates: list = field(default_factory=list)
+    residual_inliers: np.ndarray | None = None
 
 
 def check_planes_option(planes) -> int | None:
@@ -108,7 +123,9 @@ def check_planes_option(planes) -> int | None:
 
 def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
                  camera_size: tuple[int, int], *, planes="auto", min_kink_deg: float = 1.0,
-                 fold_band: float = 12.0, ransac_threshold: float = 1.5):
+                 fold_band: float = 12.0, ransac_threshold: float = 1.5, residual: bool = False,
+                 max_fold_disagreement: float = MAX_FOLD_DISAGREEMENT,
+                 residual_threshold: float | None = None, min_residual_inliers: float = 0.0):
     """Planes, homographies and folds from the detected lines (steps in the module docstring).
 
     Parameters
@@ -118,11 +135,18 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     planes : "auto" (model selection) or the number of planes, 1 .. MAX_PLANES.
     min_kink_deg, fold_band, ransac_threshold : see :class:`~.geometry.GeometryOptions`
         (``fold_band`` in camera px, not None here).
+    residual : fit each plane's smooth residual (step 6); ``parts["residual_cam"]`` holds it.
+    max_fold_disagreement : projector px two planes' images of their fold may differ by.
+    residual_threshold : camera px a crossing may be off homography plus residual and count
+        as fitting it (None: ``ransac_threshold``).
+    min_residual_inliers : least share of each plane's crossings that must fit homography plus
+        residual; below it the crossings are inconsistent (the set-up moved) and the fit stops.
 
     Returns
     -------
     parts : dict of Calibration fields: ``H_cam_from_proj``, ``H_proj_from_cam`` (n, 3, 3),
-        ``folds_proj``, ``folds_cam`` (f, 3), ``fold_planes`` (f, 2) int32, ``lit_polygon_cam``.
+        ``folds_proj``, ``folds_cam`` (f, 3), ``fold_planes`` (f, 2) int32, ``lit_polygon_cam``
+        and, with ``residual``, ``residual_cam`` (n, gy, gx, 2).
     stats : dict for ``meta["geometry"]`` (n_planes, rms_px, inliers, folds, candidates, ...).
     detail : :class:`GeometryDetail`.
 
@@ -134,6 +158,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     """
     want = check_planes_option(planes)
     band = float(fold_band)
+    res_thr = float(ransac_threshold if residual_threshold is None else residual_threshold)
     detail = GeometryDetail(detection=detection)
     kinks = []
     for k, ln in enumerate(detection.lines):
@@ -178,12 +203,15 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         detail.fold_inliers = np.zeros(len(kinks), bool)
         detail.kink_fold = np.full(len(kinks), -1)
         layout_proj = PlaneLayout(1)
+        ctrl = [plane_residual(H, proj, cam, projector_size, res_thr)] if residual else None
     else:
         raw = label_crossings([cands[i][0] for i in kept], proj, cam, ransac_threshold)
         coarse, _ = clean_labels(grid, raw, n)
         (Hs, fits, folds_proj, folds_cam, fold_planes, plane, fold_stats,
-         kink_fold, segs) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
-                                        band, ransac_threshold)
+         kink_fold, segs, ctrl) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
+                                              band, ransac_threshold,
+                                              projector_size if residual else None,
+                                              max_fold_disagreement, res_thr)
         # ---- numbering (docs/internals.md)
         layout_proj = PlaneLayout(n, folds_proj, fold_planes)
         order = _plane_order(layout_proj, projector_size)
@@ -191,6 +219,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         new_of[order] = np.arange(n)
         Hs = Hs[order]
         fits = [fits[o] for o in order]
+        ctrl = None if ctrl is None else [ctrl[o] for o in order]
         fold_planes = new_of[fold_planes]
         plane = np.where(plane >= 0, new_of[np.maximum(plane, 0)], -1).astype(np.int8)
         coarse = np.where(coarse >= 0, new_of[np.maximum(coarse, 0)], -1)
@@ -217,6 +246,32 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
              "folds_cam": np.asarray(folds_cam, np.float64).reshape(-1, 3),
              "fold_planes": np.asarray(fold_planes, np.int32).reshape(-1, 2),
              "lit_polygon_cam": lit_polygon(projector_size, Hs, layout_proj)}
+    if ctrl is not None and not any(np.any(c[0]) for c in ctrl):
+        stats["residual"] = {"rms_px_flat": [round(c[4], 4) for c in ctrl], "kept": False}
+        ctrl = None                 # exact planes: no field is worth keeping
+    if ctrl is not None:
+        parts["residual_cam"] = np.stack([c[0] for c in ctrl])
+        res_in = np.zeros(len(proj), bool)
+        for p in range(n):
+            res_in[np.flatnonzero(plane == p)[ctrl[p][1]]] = True
+        detail.residual_inliers = res_in
+        stats["residual"] = {
+            "rms_px": [round(c[2], 4) for c in ctrl],
+            "inlier_fraction": [round(float(c[1].mean()), 4) for c in ctrl],
+            "max_px": [round(c[3], 3) for c in ctrl],
+            "rms_px_flat": [round(c[4], 4) for c in ctrl], "kept": True}
+        for p, c in enumerate(ctrl):
+            share = float(c[1].mean()) if c[1].size else 0.0
+            if share < min_residual_inliers:
+                raise CalibrationError(
+                    f"plane {p + 1} of {n}: the line crossings are inconsistent — only "
+                    f"{100 * share:.0f} % of {c[1].size} fit its homography and a smooth residual "
+                    f"within {res_thr} camera px. The set-up probably moved between captures "
+                    "(camera or projector knocked, auto-focus or image stabilisation on), or the "
+                    "surface is not smooth there. Fix both devices firmly and calibrate again.")
+            if c[3] > MAX_RESIDUAL_PX:
+                log.warning("plane %d of %d: its residual reaches %.1f camera px off its homography"
+                            ": far from a plane, or two surfaces taken for one", p + 1, n, c[3])
     dis = [f["disagreement_px"] for f in fold_stats]
     stats.update(n_planes=n, planes_option=planes if want is None else want,
                  rms_px=[round(f[2], 4) for f in fits], inliers=[int(f[1].sum()) for f in fits],
@@ -248,8 +303,41 @@ def _check_count(want: int | None, kept: list[int], evidence) -> None:
         "folds; check that the camera sees every plane, or calibrate with planes='auto'.")
 
 
-def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold):
-    """Steps 3-5 for n >= 2 planes, in the model selection's numbering."""
+def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
+                   projector_size: tuple[int, int], threshold: float):
+    """One plane's residual field from its crossings (step 6): (ctrl (gy, gx, 2), inliers (N,)
+    bool, RMS camera px of the inliers after the field, largest |field| over the frame (px),
+    RMS of the same crossings off the homography alone).
+
+    What the homography leaves is fitted by :func:`rtdefocus.residual.fit_residual`; crossings
+    more than ``threshold`` off homography plus field are left out and the field refitted
+    (twice), so a stray crossing does not bend the wall. A field that does not halve the
+    homography's misfit, or stays within :data:`MIN_RESIDUAL_PX`, is noise: the plane is kept
+    exactly flat (zero field)."""
+    r = cam - apply_h(H, proj)
+    norm = np.linalg.norm(r, axis=1)
+    keep = norm <= max(4.0 * threshold, 2.0 * float(np.percentile(norm, 90)) if len(norm) else 0)
+    for _ in range(3):
+        ctrl = fit_residual(proj[keep], r[keep], projector_size)
+        err = np.linalg.norm(r - displacement(ctrl, proj[:, 0], proj[:, 1], projector_size), axis=1)
+        keep = err <= threshold
+    rms = float(np.sqrt(np.mean(err[keep] ** 2))) if keep.any() else float("inf")
+    rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
+    wp, hp = projector_size
+    gx, gy = np.meshgrid(np.linspace(0, wp - 1, 33), np.linspace(0, hp - 1, 25))
+    biggest = float(np.linalg.norm(displacement(ctrl, gx.ravel(), gy.ravel(), projector_size),
+                                   axis=1).max())
+    if not (rms_flat > 2.0 * rms and biggest > MIN_RESIDUAL_PX):
+        ctrl, biggest = np.zeros_like(ctrl), 0.0
+        keep = norm <= threshold
+        rms = rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
+    return ctrl, keep, rms, biggest, rms_flat
+
+
+def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
+                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None):
+    """Steps 3-6 for n >= 2 planes, in the model selection's numbering; ``residual_size``
+    (the projector size) fits the residual fields (else None is returned for them)."""
     kpts = np.array([kk.point_cam_xy for kk in kinks]).reshape(-1, 2)
     kink_fold = np.full(len(kinks), -1)
     folds_cam, pairs, fold_stats = [], [], []
@@ -295,16 +383,27 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold):
         fits.append((H, inl, rms))
     Hs = np.stack([f[0] for f in fits])
     Hinv = np.stack([np.linalg.inv(H) for H in Hs])
+    ctrl = None
+    if residual_size is not None:
+        rt = threshold if residual_threshold is None else residual_threshold
+        ctrl = [plane_residual(Hs[p], proj[plane == p], cam[plane == p], residual_size, rt)
+                for p in range(n)]
     folds_proj, segs = [], []
     for j, (a, b) in enumerate(pairs):
         seg = _visible_fold(layout_cam, j, valid)
         if seg is None:
             pts = kpts[kink_fold == j]
             seg = np.stack([pts.min(axis=0), pts.max(axis=0)])
-        line, dis = fold_to_projector(folds_cam[j], Hinv[[a, b]], seg)
+        to_proj = None
+        if ctrl is not None:
+            to_proj = [functools.partial(proj_from_cam, Hinv[q], ctrl[q][0],
+                                         projector_size=residual_size) for q in (a, b)]
+        line, dis = fold_to_projector(folds_cam[j], Hinv[[a, b]], seg, to_proj=to_proj)
+        if ctrl is not None and (np.any(ctrl[a][0]) or np.any(ctrl[b][0])):
+            line = crease(line, [(Hs[q], ctrl[q][0]) for q in (a, b)], residual_size)
         line = canonical_line(line)
         fold_stats[j]["disagreement_px"] = round(dis, 4)
-        if dis > MAX_FOLD_DISAGREEMENT:
+        if dis > max_disagreement:
             raise CalibrationError(
                 f"planes {a + 1} and {b + 1} disagree about where their fold is by {dis:.1f} "
                 "projector px: the kinks do not lie where the homographies meet. Check that the "
@@ -317,7 +416,55 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold):
         folds_proj.append(line)
         segs.append(seg)
     return (Hs, fits, np.array(folds_proj), folds_cam, np.array(pairs, np.int64), plane,
-            fold_stats, kink_fold, segs)
+            fold_stats, kink_fold, segs, ctrl)
+
+
+def crease(line: np.ndarray, maps, projector_size: tuple[int, int], reach: float = 16.0,
+           step: float = 0.25, min_shift: float = 1.0) -> np.ndarray:
+    """The projector fold where two planes' full maps (homography plus residual) meet, near
+    ``line``: at points along it inside the frame, the offset along its normal (within
+    ``reach`` px) where the two camera points are nearest, then a line through those.
+
+    The kinks that give the camera fold sit where straight pieces of a line meet; on a wall
+    that bows the piece beside the fold is curved, which moves the kinks (a pixel or two, the
+    same on every line) while the two maps still meet exactly at the fold. The crease is
+    taken only where it moves the fold by more than ``min_shift`` px somewhere in the frame:
+    on exact planes the kinks are unbiased and the residuals' noise near the fold (where they
+    have no crossings) would only add a few tenths of a pixel."""
+    wp, hp = projector_size
+    a, b, c = line / np.hypot(line[0], line[1])
+    n = np.array([a, b])
+    d = np.array([-b, a])
+    p0 = -c * n
+    half = float(np.hypot(wp, hp))
+    t = np.linspace(-half, half, 801)
+    pts = p0 + t[:, None] * d
+    pts = pts[(pts[:, 0] >= 0) & (pts[:, 0] <= wp - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= hp - 1)]
+    if len(pts) < 8:
+        return line
+    pts = pts[:: max(1, len(pts) // 40)]
+    offs = np.arange(-reach, reach + step / 2, step)
+    grid = (pts[:, None, :] + offs[None, :, None] * n).reshape(-1, 2)
+
+    def cam(H, ctrl):
+        return apply_h(H, grid) + displacement(ctrl, grid[:, 0], grid[:, 1], projector_size)
+
+    gap = np.linalg.norm(cam(*maps[0]) - cam(*maps[1]), axis=1).reshape(len(pts), len(offs))
+    k = np.clip(np.argmin(gap, axis=1), 1, len(offs) - 2)
+    rows = np.arange(len(pts))
+    # Parabola through the smallest gap and its neighbours: sub-step offset.
+    g0, g1, g2 = gap[rows, k - 1], gap[rows, k], gap[rows, k + 1]
+    den = g0 - 2 * g1 + g2
+    frac = np.where(den > 1e-12, 0.5 * (g0 - g2) / np.where(den > 1e-12, den, 1.0), 0.0)
+    best = offs[k] + np.clip(frac, -1, 1) * step
+    inner = (np.argmin(gap, axis=1) > 0) & (np.argmin(gap, axis=1) < len(offs) - 1)
+    if inner.sum() < 4:
+        return line
+    on = pts[inner] + best[inner, None] * n
+    out = normalise_line(tls_line(on))
+    out = out if out @ [a, b, 0.0] >= 0 else -out
+    shift = float(np.abs(line_eval(out, pts[[0, -1]])).max())     # the ends bound a line's
+    return out if shift > min_shift else line
 
 
 def _visible_fold(layout: PlaneLayout, j: int, valid: np.ndarray):

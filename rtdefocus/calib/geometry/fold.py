@@ -235,7 +235,7 @@ def fit_fold(points_xy: np.ndarray, *, tol: float = 3.0, min_inliers: int = 5,
 
 
 def fold_to_projector(fold_cam: np.ndarray, H_proj_from_cam: np.ndarray,
-                      segment_cam: np.ndarray):
+                      segment_cam: np.ndarray, to_proj=None):
     """The projector fold from the camera fold and each plane's inverse homography.
 
     Parameters
@@ -243,6 +243,8 @@ def fold_to_projector(fold_cam: np.ndarray, H_proj_from_cam: np.ndarray,
     fold_cam : (3,) camera fold line.
     H_proj_from_cam : (2, 3, 3).
     segment_cam : (2, 2) ends of the visible part of the camera fold.
+    to_proj : optional pair of functions, camera points (N, 2) -> projector points, one per
+        plane, used instead of the inverse homographies (planes with a residual field).
 
     Returns
     -------
@@ -252,8 +254,11 @@ def fold_to_projector(fold_cam: np.ndarray, H_proj_from_cam: np.ndarray,
     """
     ts = np.linspace(0.0, 1.0, 21)
     seg = segment_cam[0][None, :] * (1 - ts[:, None]) + segment_cam[1][None, :] * ts[:, None]
-    m0 = apply_h(H_proj_from_cam[0], seg)
-    m1 = apply_h(H_proj_from_cam[1], seg)
+    if to_proj is None:
+        m0 = apply_h(H_proj_from_cam[0], seg)
+        m1 = apply_h(H_proj_from_cam[1], seg)
+    else:
+        m0, m1 = to_proj[0](seg), to_proj[1](seg)
     line = normalise_line(tls_line(np.concatenate([m0, m1])))
     l0 = normalise_line(tls_line(m0))
     # Largest distance between the two mapped lines over the visible segment (at its ends,

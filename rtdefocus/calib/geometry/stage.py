@@ -23,11 +23,11 @@ import logging
 import time
 from dataclasses import dataclass, fields
 
-from ...errors import InputError
+from ...errors import CalibrationError, InputError
 from ...procam import ProCam
 from ..capture import Capturer
 from ..file import Calibration
-from .fit import GeometryDetail, check_planes_option, fit_geometry
+from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns
@@ -58,6 +58,12 @@ class GeometryOptions:
     planes : "auto" (as many planes as the crossings clearly show: each a contiguous region
         with kinks along its folds) or their number 1 .. 8; a number the data contradict is an
         error that says what was found.
+    residual : fit each plane a smooth residual off its homography (walls that are planes
+        only nearly: a bowed panel, a sagging sheet), carried by the warp and the file; when
+        the flat-plane fit refuses the set-up, it is fitted again with a looser inlier distance
+        (:data:`NEARLY_FLAT_FACTOR` × ``ransac_threshold``, and as many times the fold
+        disagreement) and the residual. False: exact
+        planes (the paper's model).
     """
 
     line_spacing: int = 48
@@ -69,11 +75,18 @@ class GeometryOptions:
     ransac_threshold: float = 1.5
     undistort: bool = True
     planes: int | str = "auto"
+    residual: bool = True
 
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
 OPTIONS = tuple(f.name for f in fields(GeometryOptions))
 _D = GeometryOptions()
+#: The inlier distance of the second, nearly-flat fit, as a multiple of ``ransac_threshold``:
+#: walls a few camera px off a plane stay one plane each, their residual fields take the rest.
+NEARLY_FLAT_FACTOR = 4.0
+#: ... but homography plus residual must still fit this share of each plane's crossings within
+#: ``ransac_threshold``: crossings from before and after a knock are no smooth residual.
+NEARLY_FLAT_INLIERS = 0.9
 
 
 def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
@@ -81,7 +94,8 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                        line_width: int = _D.line_width, samples: int = _D.samples,
                        min_kink_deg: float = _D.min_kink_deg, fold_band: float | None = _D.fold_band,
                        ransac_threshold: float = _D.ransac_threshold,
-                       undistort: bool = _D.undistort, planes: int | str = _D.planes) -> Calibration:
+                       undistort: bool = _D.undistort, planes: int | str = _D.planes,
+                       residual: bool = _D.residual) -> Calibration:
     """Learn the set-up's geometry through ``capture`` only.
 
     Parameters
@@ -90,7 +104,8 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     capture : the calibration's :class:`Capturer` (counts, retries, progress); a fresh one
         when None.
     line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold,
-    undistort, planes : see :class:`GeometryOptions` (their defaults are its defaults).
+    undistort, planes, residual : see :class:`GeometryOptions` (their defaults are its
+    defaults).
 
     Returns
     -------
@@ -127,18 +142,43 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     camera_size = tuple(procam.camera_size)
     band = float(fold_band) if fold_band is not None else float(det.half)
 
-    def fit(detection: LineDetection, threshold: float = ransac_threshold) -> Calibration:
+    def fit(detection: LineDetection, threshold: float = ransac_threshold,
+            disagreement: float = MAX_FOLD_DISAGREEMENT, min_residual_inliers: float = 0.0
+            ) -> Calibration:
         parts, stats, detail = fit_geometry(detection, pats.projector_size, camera_size,
                                             planes=planes, min_kink_deg=min_kink_deg,
+                                            residual=bool(residual),
+                                            max_fold_disagreement=disagreement,
+                                            residual_threshold=ransac_threshold,
+                                            min_residual_inliers=min_residual_inliers,
                                             fold_band=band, ransac_threshold=threshold)
         options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
-                   "fold_band": band, "ransac_threshold": threshold, "planes": planes}
+                   "fold_band": band, "ransac_threshold": threshold, "planes": planes,
+                   "residual": bool(residual)}
         return _calibration(parts, stats, detail, pats, options, t_start)
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
-    return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
-                         rough=lambda d: fit(d, 4.0 * ransac_threshold))
+    try:
+        return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
+                             rough=lambda d: fit(d, 4.0 * ransac_threshold))
+    except CalibrationError as exc:
+        if not residual:
+            raise
+        # Walls a few px off a plane split into many small planes, or their folds disagree:
+        # one plane each with a looser inlier distance, and the residual fields take the rest.
+        loose = NEARLY_FLAT_FACTOR * ransac_threshold
+        log.info("geometry: the flat-plane fit refused the set-up (%s); fitting nearly flat "
+                 "planes (inliers within %.1f px, residual fields)", exc, loose)
+        try:
+            calib = fit_with_lens(
+                lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT,
+                              NEARLY_FLAT_INLIERS), detection, camera_size,
+                correct=bool(undistort))
+        except CalibrationError:
+            raise exc from None
+        calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
+        return calib
 
 
 def _calibration(parts: dict, fit_stats: dict, detail: GeometryDetail, pats: LinePatterns,

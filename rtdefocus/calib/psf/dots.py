@@ -72,6 +72,8 @@ def camera_to_projector_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray
         ideal = ideal_points(calib, np.stack([xs, ys], axis=-1))
         xs, ys = ideal[..., 0], ideal[..., 1]
     plane = calib.layout_cam.label(xs, ys).astype(int)
+    if calib.residual_cam is not None:      # homography plus each plane's residual
+        return calib.proj_from_cam(xs, ys, plane)
     return apply_h_per_plane(calib.H_proj_from_cam, plane, xs, ys)
 
 
@@ -88,6 +90,9 @@ def _camera_bbox(calib: Calibration, x: int, y: int, h: int) -> tuple[slice, sli
     for H in Hs:  # both walls: a window near the fold may span the two
         q = corners @ H.T
         cam.append(q[:, :2] / q[:, 2:3])
+    if calib.residual_cam is not None:
+        # The corners' own plane's residual moves where they land (a few px).
+        cam.append(calib.cam_from_proj(corners[:, 0], corners[:, 1]))
     # The window is small: its corners, seen through the lens, bound it (the margins below
     # cover the slight bend of its edges).
     cam = observed_points(calib, np.vstack(cam))

@@ -123,6 +123,9 @@ def projector_to_camera_maps(calib: Calibration) -> tuple[np.ndarray, np.ndarray
     ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float64)
     plane = calib.plane_map()
     map_x, map_y = apply_h_per_plane(calib.H_cam_from_proj, plane, xs, ys)
+    dense = calib.residual_dense()
+    if dense is not None:       # each plane's smooth residual off its homography
+        map_x, map_y = map_x + dense[..., 0], map_y + dense[..., 1]
     if lens_k(calib) is not None:
         obs = observed_points(calib, np.stack([map_x, map_y], axis=-1))
         map_x, map_y = obs[..., 0], obs[..., 1]
