@@ -342,8 +342,9 @@ class VirtualProCam(SetupChanges):
 
     def _albedo(self, pts_w: np.ndarray, wall: np.ndarray) -> np.ndarray:
         """RGB albedo (3, N) of world points (3, N) on the given walls (0 where wall = -1)."""
-        return wall_albedo(self.scene.albedo, self._walls, pts_w, wall, amplitude=self.texture_amplitude,
-                           texture=self.texture, phase=self._tex_phase)
+        return wall_albedo(self.scene.albedo, self._walls, pts_w, wall,
+                           amplitude=self.texture_amplitude, texture=self.texture,
+                           phase=self._tex_phase)
 
     def _place_camera(self) -> None:
         """The camera's pose and intrinsics (``_cam_center``, ``R_cam``, ``t_cam``, ``K_cam``)."""
@@ -420,7 +421,7 @@ class VirtualProCam(SetupChanges):
         if self.exposure is None:
             # Auto-exposure: a full white frame peaks at 95 % of full scale (no clipping).
             peak = float(np.max(self._pad_albedo * (self._pad_shade[..., None] + self.ambient)))
-            self.exposure = 0.95 / peak * sc.exposure_gain
+            self.exposure = 0.95 / peak * self.scene.exposure_gain
         self._cam_albedo = (self.exposure * self._cam_albedo).astype(np.float32)
 
     def _build_truth(self) -> None:
