@@ -95,10 +95,11 @@ def test_demo_shows_a_room_of_three_planes(demo_result):
     assert calib.n_planes == 3 and calib.has_psf
     assert "virtual `corner_ceiling`" in (out / "table.md").read_text()
     row = next(r for r in room["rows"] if r["name"] == "chelsea")
-    # Measured (this fixture, 2 cores, 2026-11-28): +2.07 dB overall, +1.34 dB within 24 camera
-    # px of a fold; asked for: half of each.
-    assert row["psnr"]["ycbcr"] > row["psnr"]["none"] + 0.5 * 2.07, row["psnr"]
-    assert row["psnr_fold"]["ycbcr"] > row["psnr_fold"]["none"] + 0.5 * 1.34, row["psnr_fold"]
+    # Measured with this fixture's arguments (run_demo on chelsea and text, 400x300, the
+    # corner_ceiling room; 2026-12-03): +2.63 dB overall, +2.01 dB within 24 camera px of a
+    # fold; asked for: 85 % of each.
+    assert row["psnr"]["ycbcr"] > row["psnr"]["none"] + 0.85 * 2.63, row["psnr"]
+    assert row["psnr_fold"]["ycbcr"] > row["psnr_fold"]["none"] + 0.85 * 2.01, row["psnr_fold"]
 
 
 def test_cli_demo_rooms_option_is_checked(capsys):

@@ -27,12 +27,15 @@ def _interior(truth, margin: int) -> np.ndarray:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", PRESETS)
-def test_gamma_recovered_within_3_percent(preset):
+def test_gamma_recovered_within_1_5x_of_its_measured_error(preset):
+    """Measured relative errors, the largest channel: cubicle 0.25 %, tilted 0.30 %, pillar
+    0.38 % (each gamma read from ``calibrated(preset).calib.meta["radiometry"]["gamma"]``);
+    the bound is 1.5x the largest."""
     res = calibrated(preset)
     gammas = res.calib.meta["radiometry"]["gamma"]
     assert len(gammas) == 3
     for c, g in enumerate(gammas):
-        assert abs(g / GAMMA - 1) < 0.03, f"channel {c}: gamma {g:.3f}, true {GAMMA}"
+        assert abs(g / GAMMA - 1) < 1.5 * 0.0038, f"channel {c}: gamma {g:.4f}, true {GAMMA}"
 
 
 @pytest.mark.slow
