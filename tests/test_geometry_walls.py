@@ -107,6 +107,7 @@ def test_flat_walls_get_no_residual():
     assert abs(checker("cubicle", calib)[0] - checker("cubicle", flat)[0]) < 0.02
 
 
+@pytest.mark.slow
 def test_cli_flat_option(tmp_path):
     """``rtdefocus calibrate --flat`` writes exact planes; without it the file carries each
     plane's residual (format 4), and both load."""

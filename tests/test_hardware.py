@@ -133,6 +133,7 @@ def test_stale_camera_latency_measured_and_patterns_captured_in_order(caplog):
         assert pc.recaptured == 0 and pc.report()["latency_s"] == pc.latency.seconds
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_content_check_recaptures_when_the_delay_grows(caplog):
     """The camera's delay jumps from 0.1 s to 0.45 s mid-run (a network hiccup): the frame
@@ -151,6 +152,7 @@ def test_content_check_recaptures_when_the_delay_grows(caplog):
         assert "does not show the pattern" in caplog.text
 
 
+@pytest.mark.slow
 def test_content_check_gives_up_with_the_fix():
     pc, proj, dev = _procam(camera={"delay": 0.05}, average=1, recaptures=1)
     with pc:
@@ -168,6 +170,7 @@ def test_settle_shorter_than_the_latency_is_raised(caplog):
         assert pc.settle >= 0.2 and "shorter than the measured" in caplog.text
 
 
+@pytest.mark.slow
 def test_camera_that_does_not_see_the_projector():
     proj = FakeProjector(PROJ)
     with pytest.raises(CaptureError, match="does not see the projector"):
@@ -302,6 +305,7 @@ def test_cli_check_reports_mode_latency_clipping(fake_hardware, capsys):
         assert text in out, (text, out)
 
 
+@pytest.mark.slow
 def test_cli_check_fails_on_clipping(fake_hardware, capsys):
     from rtdefocus import cli
 

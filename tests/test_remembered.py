@@ -67,6 +67,7 @@ def setup_file(rig, tmp_path, capsys):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_calibrate_records_the_monitor_and_the_camera(setup_file):
     from rtdefocus.calib.file import Calibration
@@ -81,6 +82,7 @@ def test_calibrate_records_the_monitor_and_the_camera(setup_file):
     assert cam["controls"], "the locked control values are recorded"
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_check_uses_the_remembered_set_up_and_prints_the_complete_command(rig, setup_file,
                                                                           capsys):
@@ -109,6 +111,7 @@ def test_check_uses_the_remembered_set_up_and_prints_the_complete_command(rig, s
     assert args.camera_size == (320, 240) and args.lock and args.camera_backend == "v4l2"
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_check_refuses_a_missing_or_different_monitor(rig, setup_file, capsys):
     from rtdefocus import cli
@@ -125,6 +128,7 @@ def test_check_refuses_a_missing_or_different_monitor(rig, setup_file, capsys):
     assert rig["opened"] == [], "nothing opened on a wrong monitor"
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_check_refuses_a_missing_camera(rig, setup_file, capsys):
     from rtdefocus import cli
@@ -297,6 +301,7 @@ def test_camera_backend_option_opens_through_that_backend(monkeypatch):
         camera_mod.CameraSettings(backend="directshow")
 
 
+@pytest.mark.slow
 def test_cli_camera_backend_reaches_the_hardware(rig, monkeypatch):
     import rtdefocus.hardware.preflight as pre
     from rtdefocus import cli

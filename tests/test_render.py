@@ -107,6 +107,7 @@ def test_plan_chunks():
             plan_chunks(*args)
 
 
+@pytest.mark.slow
 def test_render_matches_serial_and_keeps_the_sound(film, archive):
     """Rendered in 4 chunks on 2 processes, decoded: every frame (seams included) within 0.05 dB
     of the serial compensation in the camera's view, the projector's size and the film's rate,
@@ -128,6 +129,7 @@ def test_render_matches_serial_and_keeps_the_sound(film, archive):
     _same_audio(_audio_packets(film["path"]), _audio_packets(result.output))
 
 
+@pytest.mark.slow
 def test_render_on_dask_local_cluster(film, archive):
     """Two Dask worker processes (each its own device) render the same frames as local
     processes, and report their chunks from two processes."""
@@ -162,6 +164,7 @@ if __name__ == "__main__":
 """
 
 
+@pytest.mark.slow
 def test_render_killed_resumes_without_redoing_chunks(film, archive, tmp_path):
     """A render SIGKILLed after two chunks, started again, renders only the chunks that were
     not finished (the finished files untouched) and writes the same output as an uninterrupted

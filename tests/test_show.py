@@ -238,6 +238,7 @@ def _beep_onsets(card) -> np.ndarray:
     return loud[np.r_[True, np.diff(loud) > card.rate // 10]] / card.rate
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_video_and_sound_stay_within_40ms_over_30s(comp, film):
     """A 30 s film with a flash and a beep each second, played by the sound's clock with a
@@ -256,6 +257,7 @@ def test_video_and_sound_stay_within_40ms_over_30s(comp, film):
     assert gap.max() <= 0.040, gap.max()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_a_slow_solver_skips_frames_to_follow_the_sound(comp, film):
     """45-60 ms per frame (slower than the 33 ms period): frames are skipped, and each frame
