@@ -244,6 +244,18 @@ def _hardware_procam(hw, args):
               camera_backend=args.camera_backend or "auto")
 
 
+def _load_remembered(args):
+    """The calibration file ``args.calibration`` names (None without one), after filling the
+    camera and monitor options the command line left out from what it remembers."""
+    calib = None
+    if args.calibration:
+        from ..calib.file import Calibration
+
+        calib = Calibration.load(args.calibration)
+    _remembered_hardware(args, calib)
+    return calib
+
+
 def _remembered_hardware(args, calib=None, *, monitors=None, cameras=None) -> None:
     """Fill the camera and monitor options the command line left out from what ``calib``
     remembers (:mod:`rtdefocus.hardware.remembered`), then check the monitor is connected."""
@@ -378,12 +390,7 @@ def cmd_aim(args) -> int:
     from ..hardware.aim_loop import run_aim
     from ..hardware.camera import CameraSettings, open_camera
 
-    calib = None
-    if args.calibration:
-        from ..calib.file import Calibration
-
-        calib = Calibration.load(args.calibration)
-    _remembered_hardware(args, calib)
+    calib = _load_remembered(args)
     camera = int(args.camera) if str(args.camera).isdigit() else args.camera
     settings = CameraSettings(size=args.camera_size, fourcc=args.fourcc, fps=args.camera_fps,
                               backend=args.camera_backend or "auto")
@@ -439,12 +446,7 @@ def cmd_check(args) -> int:
     from ..hardware import hardware_procam as procam_mod
     from ..hardware.preflight import FAIL, format_report, preflight
 
-    calib = None
-    if args.calibration:
-        from ..calib.file import Calibration
-
-        calib = Calibration.load(args.calibration)
-    _remembered_hardware(args, calib)
+    _load_remembered(args)
     with _hardware_procam(procam_mod.HardwareProCam, args) as procam:
         items = preflight(procam)
         command = _calibrate_command(args, procam)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .source import Frame, Source
+from .source import Frame, Pacer, Source
 
 log = logging.getLogger(__name__)
 
@@ -183,7 +183,7 @@ class ScreenSource(Source):
         self._local = threading.local()   # one grabber per thread (X11 connections are per thread)
         self._grabbers: list = []
         self._index = 0
-        self._t0: float | None = None
+        self._pacer = Pacer(rebase=True)
 
     def _grabber(self):
         sct = getattr(self._local, "sct", None)
@@ -211,14 +211,7 @@ class ScreenSource(Source):
         return np.ascontiguousarray(bgra[..., 2::-1])
 
     def read(self) -> Frame | None:
-        now = time.perf_counter()
-        if self._t0 is None:
-            self._t0 = now
-        due = self._t0 + self._index / self.fps
-        if due > now:
-            time.sleep(due - now)
-        elif now - due > 1.0 / self.fps:    # fell behind: grab now, do not burst
-            self._t0 = now - self._index / self.fps
+        self._pacer.wait(self._index, self.fps)     # fell behind: grab now, do not burst
         frame = Frame(self._index, self.grab(), time.perf_counter())
         self._index += 1
         return frame

@@ -7,6 +7,7 @@ each other.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -65,3 +66,23 @@ class Source:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class Pacer:
+    """Hands out a live source's frame ``index`` at its time, ``t0 + index / fps`` (``t0``: the
+    first frame's). With ``rebase``, a source that fell behind by more than a frame restarts
+    its clock at the frame it is on, so it does not deliver a burst of late frames."""
+
+    def __init__(self, *, rebase: bool = False):
+        self.rebase = rebase
+        self._t0: float | None = None
+
+    def wait(self, index: int, fps: float) -> None:
+        now = time.perf_counter()
+        if self._t0 is None:
+            self._t0 = now
+        due = self._t0 + index / fps
+        if due > now:
+            time.sleep(due - now)
+        elif self.rebase and now - due > 1.0 / fps:
+            self._t0 = now - index / fps

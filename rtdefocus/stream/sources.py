@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..imageio import IMAGE_EXTENSIONS, read_image, rgb_from_cv2
-from .source import Frame, Source
+from .source import Frame, Pacer, Source
 
 log = logging.getLogger(__name__)
 
@@ -267,7 +267,7 @@ class ArraySource(Source):
         self.n_frames = n_frames if n_frames is not None else (
             len(frames) if hasattr(frames, "__len__") else None)
         self._index = 0
-        self._t0: float | None = None
+        self._pacer = Pacer()
 
     def read(self) -> Frame | None:
         try:
@@ -275,12 +275,7 @@ class ArraySource(Source):
         except StopIteration:
             return None
         if self.live:
-            now = time.perf_counter()
-            if self._t0 is None:
-                self._t0 = now
-            due = self._t0 + self._index / self.fps
-            if due > now:
-                time.sleep(due - now)
+            self._pacer.wait(self._index, self.fps)
         frame = Frame(self._index, np.asarray(img), time.perf_counter())
         self._index += 1
         return frame
