@@ -1,4 +1,4 @@
-"""Issue 13's done-when, end to end: the full ``rd.calibrate`` through ``capture`` only (the
+"""Three-plane rooms, end to end: the full ``rd.calibrate`` through ``capture`` only (the
 ground truth hidden, helpers.Blind) on the three-plane rooms, every figure measured against the
 simulator's truth by tests/setup_figures.py (``tools/preset_table.py`` prints the same figures
 for every preset at any size).

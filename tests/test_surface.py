@@ -335,7 +335,7 @@ def test_flatten_target_is_reachable_and_clipping_reported(fabric):
 
 @pytest.mark.slow
 def test_done_when_figures_with_a_calibrated_setup(fabric):
-    """Issue 12's done-when, end to end: ``rd.calibrate`` through the simulator (fabric, 240×180,
+    """Flatten on textured walls, end to end: ``rd.calibrate`` through the simulator (fabric, 240×180,
     camera 320×240; ~10 s, once), then grey-field CoV ≥ 4× lower, coffee ≥ 3 dB closer to the
     white wall, and the fold gain with flatten ≥ 60 % of the true-kernel oracle's (keep).
     Measured (`python tools/flatten_eval.py --calib both --camera-scale 1.3333334`): CoV 6.24×,

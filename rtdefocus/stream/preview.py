@@ -3,7 +3,7 @@ projector shows and the live figures, while the projector's own window stays cle
 
 :func:`compose_preview` makes the picture (pure, tested); :class:`PreviewSink` wraps the
 projector's :class:`~rtdefocus.stream.sinks.WindowSink`: every frame goes to the projector
-as before, and at most ``rate`` times a second a copy, scaled down, goes to the preview with
+untouched, and at most ``rate`` times a second a copy, scaled down, goes to the preview with
 the figures under it. Keys pressed in the preview drive the show as the projector's do;
 closing the preview only closes the preview.
 """
