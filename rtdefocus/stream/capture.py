@@ -183,7 +183,7 @@ class ScreenSource(Source):
         self._local = threading.local()   # one grabber per thread (X11 connections are per thread)
         self._grabbers: list = []
         self._index = 0
-        self._pacer = Pacer(rebase=True)
+        self._pacer = Pacer(rebase=True)   # fell behind: grab now, do not burst
 
     def _grabber(self):
         sct = getattr(self._local, "sct", None)
@@ -211,7 +211,7 @@ class ScreenSource(Source):
         return np.ascontiguousarray(bgra[..., 2::-1])
 
     def read(self) -> Frame | None:
-        self._pacer.wait(self._index, self.fps)     # fell behind: grab now, do not burst
+        self._pacer.wait(self._index, self.fps)
         frame = Frame(self._index, self.grab(), time.perf_counter())
         self._index += 1
         return frame
