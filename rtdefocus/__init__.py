@@ -17,6 +17,7 @@ from .errors import (
     CalibrationError,
     CalibrationFileError,
     CaptureError,
+    CaptureSetError,
     DeviceError,
     InputError,
     InputTypeError,
@@ -31,6 +32,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "sim": ("rtdefocus.sim", None),
     "calibrate": ("rtdefocus.calib", "calibrate"),
+    "calibrate_from_captures": ("rtdefocus.calib.captureset", "calibrate_from_captures"),
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
     "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
@@ -49,7 +51,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ProCam", "sim", "calibrate", "Calibration", "Compensator", "HardwareProCam", "render",
+    "ProCam", "sim", "calibrate", "calibrate_from_captures", "Calibration", "Compensator",
+    "HardwareProCam", "render",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
-    "DeviceError", "InputError", "InputTypeError", "__version__",
+    "CaptureSetError", "DeviceError", "InputError", "InputTypeError", "__version__",
 ]

@@ -37,6 +37,11 @@ class CaptureError(RtDefocusError, RuntimeError):
     """The camera or projector failed to deliver a frame."""
 
 
+class CaptureSetError(RtDefocusError, ValueError):
+    """A saved capture set is incomplete, damaged, or does not match the calibration asked of
+    it (another pattern than the one saved with a capture)."""
+
+
 class InputError(RtDefocusError, ValueError):
     """An image, pattern or argument has the wrong shape, type or value."""
 

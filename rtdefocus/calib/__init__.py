@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -45,7 +46,8 @@ STAGES = tuple(STAGE_TABLE)
 
 
 def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
-              progress: ProgressFn | None = None, **options) -> Calibration:
+              progress: ProgressFn | None = None, save_captures: str | os.PathLike | None = None,
+              **options) -> Calibration:
     """Calibrate a projector-camera set-up.
 
     Parameters
@@ -57,6 +59,11 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         ``"psf"``.
     progress : callable(stage, done, total), optional
         Called after every capture (the CLI draws a progress bar from it).
+    save_captures : folder, optional
+        Keep every pattern and capture there (lossless PNG) with a JSON index written last
+        (:mod:`.captureset`); :func:`~.captureset.calibrate_from_captures` redoes the
+        calibration from them bit for bit. A calibration that fails keeps its captures too
+        (they replay to the same failure); one interrupted by the camera keeps no index.
     **options
         Stage options, passed to the stage whose options dataclass has that field
         (:class:`~.geometry.GeometryOptions`, :class:`~.radiometry.RadiometryOptions`,
@@ -99,7 +106,28 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         known = {s: sorted(st.option_names()) for s, st in chosen.items()}
         raise InputError(f"unknown calibration options {sorted(options)} for stages {stages}; "
                          f"each stage accepts {known}")
+    recorder = None
+    if save_captures is not None:
+        from .captureset import CaptureRecorder
+
+        saved_options = {k: v for st in per_stage.values() for k, v in st.items()}
+        procam = recorder = CaptureRecorder(procam, save_captures)
     cap = Capturer(procam, progress)
+    if recorder is not None:
+        recorder.stage = lambda: cap.stage
+    try:
+        calib = _run_stages(procam, chosen, per_stage, cap)
+    except CalibrationError as exc:
+        if recorder is not None:
+            recorder.finish(saved_options, tuple(chosen), outcome=f"failed: {exc}")
+        raise
+    if recorder is not None:
+        recorder.finish(saved_options, tuple(chosen))
+    return calib
+
+
+def _run_stages(procam, chosen: dict, per_stage: dict, cap: Capturer) -> Calibration:
+    """The stages of :func:`calibrate`, in order, through ``cap``; the Calibration."""
     timings = {}
     calib = None
     for name, st in chosen.items():

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import CaptureError, InputError
+from ..errors import CaptureError, CaptureSetError, InputError
 from ..procam import ProCam, check_pattern
 
 log = logging.getLogger(__name__)
@@ -74,6 +74,8 @@ class Capturer:
                     raise CaptureError(f"camera returned {frame.shape} {frame.dtype}, expected "
                                        f"({hc}, {wc}, 3) uint8")
                 break
+            except CaptureSetError:
+                raise                    # a saved set gives the same answer every time
             except Exception as exc:  # a camera read can fail transiently: retry, then report
                 last = exc
                 log.warning("capture %d of stage %s failed (attempt %d): %s",

@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from .. import __version__
-from ..errors import RtDefocusError
+from ..errors import InputError, RtDefocusError
 from .common import Progress, parse_size, read_image, write_image
 
 log = logging.getLogger("rtdefocus")
@@ -141,6 +141,8 @@ examples:
   rtdefocus calibrate --sim pillar -o p.npz --stages geometry --noise 0.01 --seed 3
   rtdefocus calibrate --camera 0 --screen 1 -o setup.npz      a webcam and the second monitor
   rtdefocus calibrate --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock -o s.npz
+  rtdefocus calibrate --camera 0 --screen 1 -o s.npz --save-captures caps   keep every capture
+  rtdefocus calibrate --from-captures caps -o s2.npz          redo it from them, bit for bit
 writes setup.npz and, next to it (or in --diagnostics DIR), setup_geometry.png: the camera view
 with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles;
 setup_camera.png: the camera's and the projector's response curves, the lens's distortion grid
@@ -168,6 +170,11 @@ def add_calibrate(sub):
                      "flat, tilted, offcenter, u_cubicle or corner_ceiling")
     src.add_argument("--camera", metavar="INDEX", help="a real camera (index or URL); the patterns "
                      "go full-screen to --screen")
+    src.add_argument("--from-captures", metavar="DIR", help="a capture set kept with "
+                     "--save-captures: the calibration is redone from it (no camera or projector), "
+                     "with its options unless given here")
+    p.add_argument("--save-captures", metavar="DIR", help="keep every pattern and capture in DIR "
+                   "(lossless PNG, with a JSON index written last)")
     p.add_argument("--screen", type=int, default=None, help="projector's monitor index (`rtdefocus "
                    "info` lists them; default: the second of two monitors, else 0)")
     add_camera_options(p)
@@ -182,18 +189,17 @@ def add_calibrate(sub):
                    help="simulator camera noise, fraction of full scale (default: the simulator's)")
     p.add_argument("--diagnostics", metavar="DIR",
                    help="folder for the diagnostics pictures (default: next to the output)")
-    p.add_argument("--planes", type=_planes, default="auto", metavar="auto|N",
+    p.add_argument("--planes", type=_planes, default=None, metavar="auto|N",
                    help="number of flat surfaces (walls, ceiling) the projection covers; auto "
                    "(default) finds it from the lines' kinks")
     p.add_argument("--flat", dest="residual", action="store_false",
                    help="model each surface as an exact plane (no smooth residual for walls that "
                    "bow or sag a little)")
-    p.set_defaults(func=cmd_calibrate)
+    p.set_defaults(func=cmd_calibrate, residual=None)
 
 
 def _planes(text: str):
     from ..calib.geometry.fit import check_planes_option
-    from ..errors import InputError
 
     try:
         n = check_planes_option(text)
@@ -304,11 +310,23 @@ def cmd_calibrate(args) -> int:
 
     from ..calib import STAGES, calibrate
     from ..calib.camera_diagnostics import camera_diagnostics
+    from ..calib.captureset import calibrate_from_captures
     from ..calib.geometry.diagnostics import geometry_diagnostics
     from ..hardware import hardware_procam as procam_mod
 
     stages = args.stages or STAGES
-    if args.sim is not None:
+    # Only the options given: a replay keeps the saved ones for the rest.
+    options = {k: v for k, v in (("planes", args.planes), ("residual", args.residual))
+               if v is not None}
+    procam = None
+    if args.from_captures is not None:
+        if args.save_captures:
+            raise InputError("--from-captures and --save-captures together would copy the set: "
+                             "copy the folder instead")
+        if args.stages:
+            options["stages"] = args.stages
+        source = f"the captures in {args.from_captures}"
+    elif args.sim is not None:
         from .. import sim
 
         kwargs = {"seed": args.seed}
@@ -327,8 +345,11 @@ def cmd_calibrate(args) -> int:
     t0 = time.perf_counter()
     try:
         with Progress(args.quiet) as progress:
-            calib = calibrate(procam, stages=stages, progress=progress, planes=args.planes,
-                              residual=args.residual)
+            if procam is None:
+                calib = calibrate_from_captures(args.from_captures, progress=progress, **options)
+            else:
+                calib = calibrate(procam, stages=stages, progress=progress,
+                                  save_captures=args.save_captures, **options)
         if hasattr(procam, "drift"):
             _report_hardware(procam, after=True)
     finally:
