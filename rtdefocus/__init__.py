@@ -33,6 +33,8 @@ _LAZY = {
     "sim": ("rtdefocus.sim", None),
     "calibrate": ("rtdefocus.calib", "calibrate"),
     "calibrate_from_captures": ("rtdefocus.calib.captureset", "calibrate_from_captures"),
+    "calibrate_from_correspondences": ("rtdefocus.calib.correspondences",
+                                       "calibrate_from_correspondences"),
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
     "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
@@ -51,7 +53,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "ProCam", "sim", "calibrate", "calibrate_from_captures", "Calibration", "Compensator",
+    "ProCam", "sim", "calibrate", "calibrate_from_captures",
+    "calibrate_from_correspondences", "Calibration", "Compensator",
     "HardwareProCam", "render",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
     "CaptureSetError", "DeviceError", "InputError", "InputTypeError", "__version__",

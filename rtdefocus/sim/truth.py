@@ -57,7 +57,9 @@ class GroundTruth:
         projector frame; ``shaped``, whether a wall bows or a far wall shows (so
         ``cam_from_proj`` and not the homographies is the true map);
         ``camera_plane_map`` (Hc, Wc) int8, wall seen by each camera pixel
-        (-1: none), numbered like ``plane_map``; ``margin``, projector px simulated beyond the frame edge.
+        (-1: none), numbered like ``plane_map``; ``margin``, projector px simulated beyond the frame edge;
+        ``proj_from_cam`` (Hc, Wc, 2) float32, the projector point (x, y) each observed camera
+        pixel sees (NaN where none: a dense correspondence map's truth).
     """
 
     radius_map: np.ndarray
