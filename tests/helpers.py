@@ -46,12 +46,20 @@ class Blind:
     """The ProCam protocol and nothing else: ``projector_size``, ``camera_size`` and
     ``capture``, so that a calibration under test cannot read the simulator's ground truth
     (``truth``, ``scene``, ...). An optional ``post(index, pattern, frame) -> frame`` plays a
-    faulty camera. Every test that runs ``rd.calibrate`` or a calibration stage passes its
-    set-up through this (the truth stays with the test, on the unwrapped simulator)."""
+    faulty camera; ``exposure=True`` passes the camera's exposure control through. Every test
+    that runs ``rd.calibrate`` or a calibration stage passes its set-up through this (the
+    truth stays with the test, on the unwrapped simulator)."""
 
-    def __init__(self, inner, post=None):
+    def __init__(self, inner, post=None, *, exposure: bool = False):
         self._inner, self._post, self._n = inner, post, 0
         self.projector_size, self.camera_size = inner.projector_size, inner.camera_size
+        if exposure:
+            # The camera's exposure control (a setting of the camera, not ground truth).
+            self.set_exposure = inner.set_exposure
+
+    @property
+    def exposure(self):
+        return self._inner.exposure if hasattr(self, "set_exposure") else None
 
     def capture(self, pattern):
         frame = self._inner.capture(pattern)

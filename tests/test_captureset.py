@@ -8,7 +8,6 @@ import shutil
 
 import numpy as np
 import pytest
-from helpers import Blind
 
 import rtdefocus as rd
 from rtdefocus.calib.captureset import INDEX_NAME, CaptureRecorder
@@ -23,12 +22,9 @@ def _arrays(calib, path) -> dict[str, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def saved(tmp_path_factory):
+def saved(small_cubicle):
     """A live calibration of a small cubicle (all stages) that kept its captures."""
-    root = tmp_path_factory.mktemp("captures")
-    procam = rd.sim.VirtualProCam("cubicle", projector_gamma=2.2, **SIZES)
-    calib = rd.calibrate(Blind(procam), save_captures=root / "set")
-    return root / "set", calib
+    return small_cubicle[2], small_cubicle[1]
 
 
 def _copy(saved, tmp_path):
@@ -52,6 +48,7 @@ def test_replay_is_bit_for_bit(saved, tmp_path):
     assert differ == [], f"arrays that differ after the replay: {differ}"
 
 
+@pytest.mark.slow
 def test_cli_from_captures_writes_the_same_file(saved, tmp_path):
     from rtdefocus import cli
 

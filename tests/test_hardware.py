@@ -368,3 +368,23 @@ def test_cli_calibrate_through_a_stale_camera_matches_the_direct_calibration(fak
     for H, H0 in zip(calib.H_cam_from_proj, direct.H_cam_from_proj, strict=True):
         d = cv2.perspectiveTransform(pts, np.asarray(H)) - cv2.perspectiveTransform(pts, np.asarray(H0))
         assert np.abs(d).max() < 0.5, f"camera positions differ by {np.abs(d).max():.2f} px"
+
+
+def test_a_locked_exposure_can_be_turned_down_for_calibration():
+    """The control the calibration uses when white clips: a whole number of frame periods,
+    read back, re-applied after a restart; an unlocked camera offers none."""
+    from rtdefocus.calib.capture import Capturer
+
+    pc, _, dev = _procam(camera={"delay": 0.0}, lock=True, exposure=4 / 60, verify=False)
+    with pc:
+        cap = Capturer(pc)
+        start = cap.exposure
+        assert start == pc.controls.exposure_s and abs(start - 4 / 60) < 1e-3
+        got = cap.set_exposure(start * 0.6)
+        periods = got / (1 / 60)
+        assert got < start and abs(periods - round(periods)) < 0.01
+        assert dev.cap.props[cv2.CAP_PROP_EXPOSURE] == pc.controls.wanted["exposure"]
+        assert pc.drift() is None, "a white level of another exposure is no drift"
+    unlocked, _, _ = _procam(camera={"delay": 0.0}, verify=False)
+    with unlocked:
+        assert Capturer(unlocked).exposure is None

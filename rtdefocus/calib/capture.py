@@ -44,7 +44,7 @@ class Capturer:
         self._done = 0
         self._total = 0
         # key -> (n, mean of n captures): what one stage averaged, a later one reuses.
-        self._frames: dict[str, tuple[int, np.ndarray]] = {}
+        self._frames: dict = {}
 
     @property
     def total(self) -> int:
@@ -103,12 +103,35 @@ class Capturer:
             acc += self(pattern)
         return (acc / n).astype(np.float32)
 
+    @property
+    def exposure(self) -> float | None:
+        """The camera's exposure when the ProCam controls it (it has ``exposure``, a number
+        proportional to the light a frame gathers, and ``set_exposure``), else None."""
+        if not callable(getattr(self.procam, "set_exposure", None)):
+            return None
+        try:
+            value = float(self.procam.exposure)
+        except (AttributeError, TypeError, ValueError):
+            return None
+        return value if np.isfinite(value) and value > 0 else None
+
+    def set_exposure(self, value: float) -> float | None:
+        """Set the camera's exposure (a ProCam that controls it: :attr:`exposure`); returns the
+        exposure the camera took (a real one rounds it). Frames kept by :meth:`mean_frame`
+        stay with the exposure they were taken at."""
+        old = self.exposure
+        self.procam.set_exposure(float(value))
+        log.info("camera exposure %s -> %s (asked %.4g)", old, self.exposure, value)
+        return self.exposure
+
     def mean_frame(self, key: str, pattern: np.ndarray, n: int) -> np.ndarray:
-        """Average of ``n`` captures of ``pattern``, kept under ``key`` for this calibration run.
+        """Average of ``n`` captures of ``pattern``, kept under ``key`` (and the camera's
+        exposure, when controlled) for this calibration run.
 
         A later call with the same ``key`` reuses the captures already taken and only adds the
         missing ones. Returns float32 camera codes (Hc, Wc, 3).
         """
+        key = self._key(key)
         have_n, have = self._frames.get(key, (0, None))
         if have_n >= n:
             return have
@@ -119,5 +142,9 @@ class Capturer:
         return mean
 
     def frame_count(self, key: str) -> int:
-        """How many captures the kept mean ``key`` holds (0 if none)."""
-        return self._frames.get(key, (0, None))[0]
+        """How many captures the kept mean ``key`` holds at the current exposure (0 if none)."""
+        return self._frames.get(self._key(key), (0, None))[0]
+
+    def _key(self, key: str):
+        exposure = self.exposure
+        return key if exposure is None else (key, exposure)

@@ -182,6 +182,7 @@ class CaptureRecorder:
                  "created": _now(), "projector_size": list(self.projector_size),
                  "camera_size": list(self.camera_size), "stages": list(stages),
                  "options": _json_safe(options), "outcome": outcome, "setup_record": setup,
+                 "exposure_control": callable(getattr(self.procam, "set_exposure", None)),
                  "captures": self.records}
         fd, tmp = tempfile.mkstemp(prefix=".captures.", suffix=".tmp", dir=self.directory)
         try:
@@ -248,8 +249,8 @@ class ReplayProCam:
 
     ``capture(pattern)`` returns the next saved frame when ``pattern`` is the one saved with it
     and, where the set records the camera's exposure, ``exposure`` is the one it was taken
-    with. ``exposure`` starts at the first capture's and can be set (what a calibration that
-    lowers the exposure for its dot captures does on a camera it controls).
+    with. ``exposure`` starts at the first capture's; a set whose camera's exposure was
+    controlled has ``set_exposure`` too (a calibration turns a clipping camera down).
 
     Raises
     ------
@@ -273,14 +274,15 @@ class ReplayProCam:
             # The live set-up's monitor and camera, so the calibration remembers them as the
             # live one did (a set-up without a record gets none).
             self.setup_record = lambda: dict(self.index["setup_record"])
+        if self.index.get("exposure_control"):
+            self.set_exposure = self._set_exposure
 
-    def set_light(self, ambient=None, exposure: float | None = None) -> None:
-        """Set the exposure the next captures are asked with (the room light of a saved set
-        cannot change: ``ambient`` must be None)."""
-        if ambient is not None:
-            raise CaptureSetError("a saved capture set cannot change the room light")
-        if exposure is not None:
-            self.exposure = float(exposure)
+    def _set_exposure(self, value: float) -> None:
+        """The exposure control of a set whose camera had one: the camera took the exposure
+        the next capture records (a real camera rounds what it is asked)."""
+        nxt = self.records[self.position].get("exposure") if self.position < len(self.records) \
+            else None
+        self.exposure = float(value) if nxt is None else nxt
 
     def _load(self, rec: dict, key: str) -> np.ndarray:
         path = self.directory / rec[key]

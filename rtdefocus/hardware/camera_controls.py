@@ -30,6 +30,8 @@ import logging
 import math
 from dataclasses import dataclass, field
 
+from ..errors import CaptureError
+
 log = logging.getLogger(__name__)
 
 
@@ -172,6 +174,33 @@ def lock_controls(cap, backend: str, *, frame_period: float = 1 / 60, exposure: 
         report.exposure_s = exposure
     (log.info if report.ok else log.warning)(report.summary())
     return report
+
+
+def set_exposure(cap, report: ControlReport, seconds: float, frame_period: float = 1 / 60) -> float:
+    """Change a locked exposure (``report`` from :func:`lock_controls`) to the whole number of
+    projector frame periods nearest ``seconds`` (at least one); returns the exposure set, in
+    seconds (``report`` and its ``wanted`` follow, so a stream restart re-applies it).
+
+    Raises
+    ------
+    CaptureError
+        The exposure is not locked (it did not take when locked), or the camera refused it.
+    """
+    spec = BACKENDS.get(report.backend)
+    if spec is None or report.exposure_s is None:
+        raise CaptureError("the camera's exposure is not locked, so it cannot be changed: "
+                           f"{report.summary()}")
+    seconds = exposure_for_period(float(seconds), frame_period, spec.exposure_unit)
+    value = exposure_to_property(seconds, spec.exposure_unit)
+    cap.set(_props()["exposure"], float(value))
+    got = float(cap.get(_props()["exposure"]))
+    if abs(got - value) > 1e-3 * max(1.0, abs(value)):
+        raise CaptureError(f"the camera refused exposure {seconds * 1e3:.1f} ms (reads back "
+                           f"{_fmt(got)}, not {_fmt(value)}); set it with the camera's own tool")
+    report.wanted["exposure"] = value
+    report.applied["exposure"] = got
+    report.exposure_s = seconds
+    return seconds
 
 
 def apply_controls(cap, wanted: dict, report: ControlReport | None = None) -> ControlReport:

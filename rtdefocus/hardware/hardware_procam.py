@@ -116,6 +116,7 @@ class HardwareProCam:
         self.settle = float(settle or 0.0)
         self.captures = self.recaptured = 0
         self.controls = self.latency = self.coarse = None
+        self.exposure_changed = False
         self.pixel_ratio: float | None = None
         self._stopped = False
         self._own_window = window is None
@@ -174,6 +175,22 @@ class HardwareProCam:
         self.cam.on_restart = relock
         t = self._show(np.zeros((hp, wp, 3), np.uint8))
         self.cam.drain(t + 0.5 if self.cam.live else 0.0)
+
+    @property
+    def exposure(self) -> float | None:
+        """The locked exposure in seconds (None unless ``lock`` set it): with
+        :meth:`set_exposure`, the control a calibration turns down when white clips."""
+        return None if self.controls is None else self.controls.exposure_s
+
+    def set_exposure(self, seconds: float) -> None:
+        """Change the locked exposure (rounded to whole projector frame periods)."""
+        from .camera_controls import set_exposure
+
+        if self.controls is None:
+            raise CaptureError("the camera's exposure is not locked: open the camera with "
+                               "lock=True (`--lock`) to let the calibration set it")
+        set_exposure(self.cam.cap, self.controls, seconds, self.frame_period)
+        self.exposure_changed = True
 
     def _measure(self, settle: float | None) -> None:
         from .sync import lit_fraction, measure_latency, projector_px_per_camera_px
@@ -265,7 +282,9 @@ class HardwareProCam:
         +0.05 = 5 % brighter. None for a video-file camera. Large values mean the exposure or
         the projector's brightness drifted during calibration (auto controls, eco mode, a lamp
         warming up): lock the camera (``lock=True``) and calibrate again."""
-        if self.latency is None:
+        if self.latency is None or self.exposure_changed:
+            # The start-up white level was taken at another exposure: the calibration's own
+            # checks (the same white frame at each stage's start and end) cover the drift.
             return None
         from ..imageio import to_grey
 

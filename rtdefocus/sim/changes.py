@@ -149,6 +149,11 @@ class SetupChanges:
         self._rebuild(change, projector=False, camera=False)
         self._log_change("set_light", ambient=self.ambient, exposure=self.exposure)
 
+    def set_exposure(self, exposure: float) -> None:
+        """Set the camera's exposure (linear gain): the control a calibration uses to stop
+        its captures clipping (``set_light(exposure=...)``)."""
+        self.set_light(exposure=exposure)
+
     def refocus(self, scale: float) -> None:
         """Scale every blur radius by ``scale`` (the lens's blur cone widened or narrowed).
 

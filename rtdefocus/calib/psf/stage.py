@@ -78,6 +78,8 @@ from ...checks import check_choice
 from ...errors import InputError
 from ..capture import Capturer
 from ..file import Calibration
+from ..geometry.lens import lit_mask_observed
+from ..radiometry.exposure import CLIPPED, check_clipping, lower_exposure
 from ..radiometry.stage import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
@@ -212,6 +214,15 @@ class PsfRun:
         # + 1: the white frame taken after the dots for the exposure-drift check.
         capture.begin("psf", options.psf_captures + 1)
         n0 = capture.counts.get("psf", 0)
+        # Without the radiometry stage's frames, this stage's own black and white (the same
+        # calls as the normaliser's): a controlled camera is turned down while white clips.
+        wp, hp = calib.projector_size
+        frames = [capture.mean_frame(key, np.full((hp, wp, 3), value, np.uint8),
+                                     max(capture.frame_count(key), 2))
+                  for key, value in (("black", 0), ("white", 255))]
+        lit = lit_mask_observed(calib)
+        if lower_exposure(capture, lit, frames[1]) is None:
+            check_clipping(frames[1], lit, "psf")
         norm = frame_normaliser(calib, capture, camera_lut)
         # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
         model = pilot_radius(calib, capture, spacing=options.pilot_spacing,
@@ -431,9 +442,11 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     frames = []
     for key, value in (("black", 0), ("white", 255)):
         n = max(capture.frame_count(key), 2)
-        frames.append(linearize_camera(capture.mean_frame(key, np.full((hp, wp, 3), value,
-                                                                      np.uint8), n),
-                                       camera_lut).sum(axis=2))
+        codes = capture.mean_frame(key, np.full((hp, wp, 3), value, np.uint8), n)
+        frames.append(linearize_camera(codes, camera_lut).sum(axis=2))
+    # A clipped pixel is no data (any channel at or near full scale): where the white frame
+    # clips, the dots' light cannot be put against it.
+    white_clipped = (codes >= CLIPPED).any(axis=2)
     black, white = frames
     span = white - black
     # Divide by the white frame's own light, except where the blur makes it fall off (the
@@ -448,7 +461,7 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
                              (0, 0), 5.0)
         env = np.where(side, e, env)
     div = np.maximum(span, 0.9 * env)
-    ok = env > 0.05 * float(np.percentile(span, 99))
+    ok = (env > 0.05 * float(np.percentile(span, 99))) & ~white_clipped
     inv = np.where(ok, 1.0 / np.where(ok, div, 1.0), 0.0)
     # The background to take off: B / (W − B) is the ambient (and projector black) over the
     # projector's light, smooth within a wall since the albedo and its texture cancel. Taken
@@ -464,7 +477,9 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     bg = bg.astype(np.float32)
 
     def normalise(frame: np.ndarray) -> np.ndarray:
-        return linearize_camera(frame, camera_lut).sum(axis=2) * inv - bg
+        out = linearize_camera(frame, camera_lut).sum(axis=2) * inv - bg
+        clipped = (np.asarray(frame) >= CLIPPED).any(axis=2)
+        return np.where(clipped, np.float32(np.nan), out) if clipped.any() else out
 
     return normalise
 

@@ -13,10 +13,14 @@ letting it fail, or succeed wrongly, deep inside a stage.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ...errors import CalibrationError
 from .camera_response import linearize
+
+log = logging.getLogger(__name__)
 
 # Fraction of the lit area allowed to clip on the white frame before it is an error.
 _CLIP_FRACTION = 0.05
@@ -25,6 +29,16 @@ _CLIP_FRACTION = 0.05
 _MIN_WHITE_CODE = 64.0
 # Relative change of the white frame (median over the lit area, any channel) that is drift.
 DRIFT_TOLERANCE = 0.02
+#: A camera code (a mean of a few frames) at or above which a pixel is clipped: the
+#: radiometry and PSF stages never read it as data.
+CLIPPED = 254.0
+#: Share of the lit camera pixels clipped (any channel) on the white frame above which a
+#: camera whose exposure the calibration controls is turned down (:func:`lower_exposure`) ...
+CLIP_LOWER = 0.02
+#: ... by this factor at a time, until under :data:`CLIP_DONE` of them clip.
+EXPOSURE_STEP = 0.6
+CLIP_DONE = 0.002
+_MAX_STEPS = 6
 
 _LOCK_HINT = ("Lock the camera's auto-exposure and auto white balance: run `rtdefocus calibrate "
               "... --lock` (optionally --exposure MS), which sets them through OpenCV and says "
@@ -66,26 +80,79 @@ def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,
             "but not clipped, then calibrate again")
 
 
+def clipped_share(white: np.ndarray, lit: np.ndarray) -> float:
+    """Share of the ``lit`` camera pixels where the frame ``white`` (codes) clips in any
+    channel (:data:`CLIPPED`)."""
+    m = np.asarray(lit, bool)
+    if not m.any():
+        return 0.0
+    return float((np.asarray(white)[m] >= CLIPPED).any(axis=1).mean())
+
+
+def check_clipping(white: np.ndarray, lit: np.ndarray, stage: str) -> None:
+    """Raise :class:`CalibrationError` when the white frame (codes) clips on more than 5 % of
+    the ``lit`` camera pixels: a stage that leaves clipped pixels out would have too little
+    left to measure there (a camera the calibration cannot turn down)."""
+    share = clipped_share(white, lit)
+    if share > _CLIP_FRACTION:
+        raise CalibrationError(
+            f"the camera is over-exposed: the white frame clips at {100 * share:.0f}% of the lit "
+            f"pixels, which the {stage} stage cannot measure. Lower the camera's exposure or gain "
+            "(or the projector's brightness) until the white is bright but not clipped, or give "
+            "the calibration the camera's exposure control (a ProCam with `exposure` and "
+            "`set_exposure`, e.g. `rtdefocus calibrate --lock`), then calibrate again")
+
+
+def lower_exposure(capture, lit: np.ndarray, white: np.ndarray) -> float | None:
+    """Turn the camera's exposure down while the white frame clips, when the calibration
+    controls it (``capture.exposure`` is not None).
+
+    ``white`` is the white frame (codes) just taken at the current exposure. Nothing happens
+    (no capture) unless it clips on more than :data:`CLIP_LOWER` of the ``lit`` pixels; then
+    the exposure drops by :data:`EXPOSURE_STEP` at a time, one white capture after each,
+    until under :data:`CLIP_DONE` clip. Returns the new exposure over the old one (what the
+    linear light of every later frame is scaled by), or None when it did not change.
+    """
+    start = capture.exposure
+    share = clipped_share(white, lit)
+    if start is None or share <= CLIP_LOWER:
+        return None
+    pattern = np.full((capture.procam.projector_size[1], capture.procam.projector_size[0], 3),
+                      255, np.uint8)
+    exposure = start
+    for _ in range(_MAX_STEPS):
+        exposure = capture.set_exposure(exposure * EXPOSURE_STEP) or exposure * EXPOSURE_STEP
+        share = clipped_share(capture(pattern), lit)
+        if share <= CLIP_DONE:
+            break
+    log.warning("the white frame clipped: camera exposure lowered from %.4g to %.4g (%.1f%% of "
+                "the lit pixels still clip)", start, exposure, 100 * share)
+    return exposure / start
+
+
 def drift(first: np.ndarray, later: np.ndarray, black: np.ndarray, lit: np.ndarray,
-          camera_lut=1.0) -> np.ndarray:
+          camera_lut=1.0, gain: float = 1.0) -> np.ndarray:
     """(3,) relative change per channel of the white frame ``later`` against ``first`` (camera
     codes), in camera-linear light above ``black``: the median over the ``lit`` pixels whose
-    white is clearly above black and not clipped."""
+    white is clearly above black and not clipped. ``gain``: the change expected (the exposure
+    of ``later`` over that of ``first``; ``black`` is ``later``'s), taken out."""
     b = linearize(black, camera_lut)
-    f = linearize(first, camera_lut) - b
+    f = linearize(first, camera_lut) - b / gain
     g = linearize(later, camera_lut) - b
     m = np.asarray(lit, bool) & (f.min(axis=2) > 0.05) & (np.maximum(first, later).max(axis=2) < 250)
     if m.sum() < 100:
         return np.zeros(3)
-    return np.array([float(np.median(g[..., c][m] / f[..., c][m])) - 1.0 for c in range(3)])
+    return np.array([float(np.median(g[..., c][m] / f[..., c][m])) / gain - 1.0
+                     for c in range(3)])
 
 
 def check_drift(first: np.ndarray, later: np.ndarray, black: np.ndarray, lit: np.ndarray,
                 camera_lut=1.0, *, stage: str = "radiometry",
-                tolerance: float = DRIFT_TOLERANCE) -> np.ndarray:
+                tolerance: float = DRIFT_TOLERANCE, gain: float = 1.0) -> np.ndarray:
     """Raise :class:`CalibrationError` naming the fix when the white frame changed by more than
-    ``tolerance`` (any channel) between ``first`` and ``later``; returns the change (3,)."""
-    d = drift(first, later, black, lit, camera_lut)
+    ``tolerance`` (any channel) between ``first`` and ``later`` (beyond the exposure change
+    ``gain``, see :func:`drift`); returns the change (3,)."""
+    d = drift(first, later, black, lit, camera_lut, gain)
     worst = int(np.argmax(np.abs(d)))
     if abs(d[worst]) > tolerance:
         what = "exposure" if np.all(np.sign(d) == np.sign(d[worst])) and \

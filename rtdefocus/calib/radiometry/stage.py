@@ -47,7 +47,7 @@ from .camera_response import (
     linearize,
     split_pattern,
 )
-from .exposure import check_drift, check_exposure
+from .exposure import check_drift, check_exposure, lower_exposure
 
 log = logging.getLogger(__name__)
 
@@ -310,6 +310,12 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     geometry_white = capture.first_white
     white_first = capture.mean_frame("white", white_pat, 1)
     in_view = _lit_camera_mask(calib)
+    # A camera the calibration controls is turned down until the white frame does not clip
+    # (the PSF stage's dots then do not either); its black and white frames are taken again.
+    gain = lower_exposure(capture, in_view, white_first)
+    if gain is not None:
+        black_c = capture.mean_frame("black", black_pat, black_frames)
+        white_first = capture.mean_frame("white", white_pat, 1)
     check_exposure(white_first, in_view, SATURATED, black_c)
 
     # ---- the camera's own response first: every frame below is linearised with it
@@ -336,7 +342,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     stage_drift = None
     if geometry_white is not None:
         stage_drift = check_drift(geometry_white.astype(np.float32), white_first, black_c,
-                                  in_view, cam_lut, stage="geometry")
+                                  in_view, cam_lut, stage="geometry", gain=gain or 1.0)
     if ramp_layout == "patches" and ramp_c is None:
         ramp_c = capture(ramp_pat)
     white_c = capture.mean_frame("white", white_pat, white_frames)
@@ -433,6 +439,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
         "ratios": np.round(ratios[:, ok], 5).tolist(),
         "seen_fraction": round(float(seen.mean()), 4),
         "lit_fraction": round(float(lit.mean()), 4),
+        "exposure_lowered": None if gain is None else round(float(gain), 4),
         "captures": int(capture.counts.get("radiometry", 0)
                         + capture.counts.get("camera response", 0)),
     }

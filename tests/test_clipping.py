@@ -1,0 +1,82 @@
+"""Captures that clip: a camera the calibration controls is turned down, a clipped pixel is
+never read as data, and a camera that cannot be turned down is refused with the fix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from calib_presets import truth_geometry
+from helpers import Blind
+from setup_figures import kernel_medians
+
+import rtdefocus as rd
+from rtdefocus.calib.capture import Capturer
+from rtdefocus.calib.psf.stage import frame_normaliser
+from rtdefocus.calib.radiometry.exposure import CLIPPED
+from rtdefocus.errors import CalibrationError
+
+SIZES = {"projector_size": (200, 150), "camera_size": (320, 240)}
+
+
+@pytest.fixture(scope="module")
+def pair(small_cubicle, tmp_path_factory):
+    """The cubicle and the same cubicle with the camera exposed 1.6x too long ("clipping"),
+    both calibrated end to end with the camera's exposure control, keeping their captures."""
+    folder = tmp_path_factory.mktemp("clipping") / "set"
+    procam = rd.sim.VirtualProCam("clipping", **SIZES)
+    start = procam.exposure
+    calib = rd.calibrate(Blind(procam, exposure=True), save_captures=folder)
+    plain = small_cubicle[0]
+    return {"cubicle": (plain, small_cubicle[1], plain.exposure),
+            "clipping": (procam, calib, start)}, folder
+
+
+def test_clipping_dots_give_the_unclipped_kernels(pair):
+    """Measured (200x150, kernel relative L2 median inside the walls): cubicle 0.0645,
+    clipping 0.0643 after the exposure went down 0.6x; the bound is the done-when, 1.2x."""
+    runs, _ = pair
+    procam, calib, start = runs["clipping"]
+    assert procam.exposure == pytest.approx(0.6 * start)
+    assert calib.meta["radiometry"]["exposure_lowered"] == pytest.approx(0.6)
+    assert runs["cubicle"][1].meta["radiometry"]["exposure_lowered"] is None
+    clipped = kernel_medians(calib, procam.truth)[0]
+    plain = kernel_medians(runs["cubicle"][1], runs["cubicle"][0].truth)[0]
+    assert clipped <= 1.2 * plain, f"kernel error {clipped:.4f} against {plain:.4f} unclipped"
+
+
+@pytest.mark.slow
+def test_replay_follows_the_exposure_changes(pair, tmp_path):
+    """The clipping run's captures replay bit for bit, the exposure changes included."""
+    runs, folder = pair
+    live = runs["clipping"][1]
+    again = rd.calibrate_from_captures(folder)
+    with np.load(live.save(tmp_path / "a.npz")) as a, np.load(again.save(tmp_path / "b")) as b:
+        assert sorted(a.files) == sorted(b.files)
+        assert all(np.array_equal(a[k], b[k]) for k in a.files if k != "meta")
+
+
+def test_a_camera_without_control_is_refused_with_the_fix():
+    procam = rd.sim.VirtualProCam("clipping", **SIZES)
+    with pytest.raises(CalibrationError, match=r"over-exposed: .*clips at \d+% .*psf stage "
+                       r"cannot measure.*set_exposure"):
+        rd.calibrate(Blind(procam), stages=("geometry", "psf"))
+
+
+def test_clipped_pixels_are_no_data():
+    """The PSF stage's normaliser: NaN wherever the white frame or the dot frame is at or
+    near full scale in any channel, the same values as before everywhere else."""
+    procam = rd.sim.VirtualProCam("clipping", **SIZES)
+    calib = truth_geometry(procam)
+    cap = Capturer(Blind(procam))
+    normalise = frame_normaliser(calib, cap, 1.0)
+    white = cap.mean_frame("white", np.full((150, 200, 3), 255, np.uint8), 2)
+    white_clipped = (white >= CLIPPED).any(axis=2)
+    assert white_clipped.mean() > 0.1
+    frame = np.full((240, 320, 3), 100, np.uint8)
+    frame[:10, :10, 1] = 255                     # one channel clips
+    img = normalise(frame)
+    assert np.isnan(img[:10, :10]).all()
+    assert np.isnan(img[white_clipped]).all()
+    rest = ~white_clipped
+    rest[:10, :10] = False
+    assert np.isfinite(img[rest]).mean() > 0.5
