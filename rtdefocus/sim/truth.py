@@ -124,3 +124,12 @@ class GroundTruth:
     @property
     def n_planes(self) -> int:
         return int(self.H_cam_from_proj.shape[0])
+
+
+def projector_map(map_x: np.ndarray, map_y: np.ndarray, margin: int, outside: float) -> np.ndarray:
+    """(Hc, Wc, 2) float32: the projector point (x, y) each observed camera pixel sees, from
+    the renderer's remap into the projector frame padded by ``margin`` (``outside`` where no
+    projector light reaches), NaN where it sees none."""
+    xy = np.stack([map_x, map_y], axis=-1) - np.float32(margin)
+    xy[map_x == outside] = np.nan
+    return xy

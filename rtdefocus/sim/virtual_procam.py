@@ -45,7 +45,7 @@ from .scene import (
     scene_walls,
 )
 from .texture import TEXTURES, wall_albedo
-from .truth import GroundTruth
+from .truth import GroundTruth, projector_map
 
 log = logging.getLogger(__name__)
 
@@ -468,17 +468,9 @@ class VirtualProCam(SetupChanges):
             camera_response_kind=self.camera_response, distortion=self.distortion,
             exposure_drift=self.exposure_drift,
             extra={"margin": m, "camera_in_frame": self._cam_in_frame,
-                   "proj_from_cam": self._proj_from_cam_map(),
+                   "proj_from_cam": projector_map(self._map_x, self._map_y, m, _OUTSIDE),
                    "camera_plane_map": cam_plane, "shaped": self._shaped},
         )
-
-    def _proj_from_cam_map(self) -> np.ndarray:
-        """(Hc, Wc, 2) float32: the projector point (x, y) each observed camera pixel sees,
-        NaN where it sees no projector light (a dense correspondence map's truth)."""
-        m = self._margin
-        xy = np.stack([self._map_x - m, self._map_y - m], axis=-1)
-        xy[self._map_x == _OUTSIDE] = np.nan
-        return xy
 
     def _cam_from_proj(self) -> np.ndarray:
         """(Hp, Wp, 2) float32: the ideal camera pixel (x, y) of the surface point each

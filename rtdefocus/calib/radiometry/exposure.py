@@ -71,7 +71,9 @@ def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,
         raise CalibrationError(
             f"the camera is over-exposed: the projector's white frame clips at {100 * clipped:.0f}% "
             "of the lit pixels. Lower the camera's exposure or gain (or the projector's "
-            "brightness) until the white is bright but not clipped, then calibrate again")
+            "brightness) until the white is bright but not clipped, or give the calibration the "
+            "camera's exposure control (`rtdefocus calibrate ... --lock`: it then turns the "
+            "camera down itself), then calibrate again")
     top = float(np.percentile(w.max(axis=1), 95))
     if top < _MIN_WHITE_CODE:
         raise CalibrationError(
