@@ -47,7 +47,7 @@ from .camera_response import (
     linearize,
     split_pattern,
 )
-from .exposure import check_drift, check_exposure, lower_exposure
+from .exposure import CLIPPED, check_drift, check_exposure, lower_exposure
 
 log = logging.getLogger(__name__)
 
@@ -246,6 +246,27 @@ def _smooth_per_plane(img: np.ndarray, plane: np.ndarray, valid: np.ndarray, sig
     return out
 
 
+def _fill_per_plane(img: np.ndarray, holes: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """(H, W, C) float32 ``img`` with each channel's ``holes`` (H, W, C) inpainted from the
+    same plane's other pixels of that channel (OpenCV's Navier-Stokes inpainting; its
+    Telea method returns garbage on float images)."""
+    out = img.copy()
+    for p in np.unique(plane):
+        on = plane == p
+        for c in range(img.shape[2]):
+            hole = holes[..., c] & on
+            keep = on & ~holes[..., c]
+            if not hole.any() or not keep.any():
+                continue
+            # The other planes' pixels become the plane's median, so nothing bleeds across a fold.
+            src = np.where(on, img[..., c], np.median(img[..., c][keep])).astype(np.float32)
+            src[hole] = 0.0
+            filled = cv2.inpaint(src, hole.astype(np.uint8), 5, cv2.INPAINT_NS)
+            # A clipped value is a lower bound of the light: never go below it.
+            out[..., c][hole] = np.maximum(filled[hole], img[..., c][hole])
+    return out
+
+
 def _lit_camera_mask(calib: Calibration) -> np.ndarray:
     """(Hc, Wc) bool: observed camera pixels inside the lit outline (through the lens)."""
     return lit_mask_observed(calib)
@@ -425,7 +446,17 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     if ambient_smooth > 0:
         ambient = _smooth_per_plane(ambient, calib.plane_map(), seen, ambient_smooth)
     calib.ambient_proj = ambient
-    calib.albedo_proj = np.where(seen[..., None], np.clip(signal, 0, None), 0).astype(np.float32)
+    albedo = np.where(seen[..., None], np.clip(signal, 0, None), 0).astype(np.float32)
+    # A channel clipped on the white frame says only "at least this much": filled from the
+    # same wall's unclipped pixels of that channel instead.
+    clip_p, _ = to_projector(calib, (white_c >= CLIPPED).astype(np.float32), maps)
+    clipped = (clip_p > 0) & seen[..., None]
+    if clipped.any():
+        albedo = _fill_per_plane(albedo, clipped, calib.plane_map())
+        log.warning("albedo: %.1f%% of the lit projector pixels were clipped in a channel on the "
+                    "white frame; filled from their walls' unclipped pixels",
+                    100 * clipped.any(axis=2).sum() / max(lit.sum(), 1))
+    calib.albedo_proj = albedo
     calib.meta["radiometry"] = {
         "gamma": [round(g, 4) for g in gammas],
         "fit_rms": [round(r, 5) for r in rms],
