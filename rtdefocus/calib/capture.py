@@ -7,8 +7,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import CaptureError, InputError
+from ..errors import CaptureError, InputError, InputTypeError
 from ..procam import ProCam, check_pattern
+from .file import Calibration
 
 log = logging.getLogger(__name__)
 
@@ -119,3 +120,18 @@ class Capturer:
     def frame_count(self, key: str) -> int:
         """How many captures the kept mean ``key`` holds (0 if none)."""
         return self._frames.get(key, (0, None))[0]
+
+
+def check_capturer(capture) -> Capturer:
+    """``capture`` if it is a :class:`Capturer`, else an InputTypeError saying how to make one."""
+    if not isinstance(capture, Capturer):
+        raise InputTypeError(f"capture must be a Capturer (rtdefocus.calib.Capturer(procam)); "
+                             f"got {type(capture).__name__}")
+    return capture
+
+
+def check_geometry(calib: Calibration, stage: str) -> None:
+    """InputTypeError unless ``calib`` is a Calibration (the geometry stage's result)."""
+    if not isinstance(calib, Calibration):
+        raise InputTypeError(f"the {stage} stage fills a Calibration with its geometry: run the "
+                             f"geometry stage first; got {type(calib).__name__}")

@@ -37,9 +37,10 @@ import numpy as np
 from ...checks import check_choice
 from ...errors import CalibrationError, InputError
 from ...planar import apply_h_per_plane
-from ..capture import Capturer
+from ..capture import Capturer, check_capturer, check_geometry
 from ..file import Calibration
 from ..geometry.lens import lens_k, lit_mask_observed, observed_points
+from ..options import stage_options
 from .camera_response import (
     CAMERA_RESPONSES,
     fit_inverse_response,
@@ -94,7 +95,6 @@ class RadiometryOptions:
 
 #: names of the stage's options (the fields of :class:`RadiometryOptions`).
 OPTIONS = tuple(f.name for f in fields(RadiometryOptions))
-_D = RadiometryOptions()
 # A camera code at or above this is treated as clipped.
 SATURATED = 250.0
 
@@ -252,40 +252,47 @@ def _lit_camera_mask(calib: Calibration) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the stage
-def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
-                         black_frames: int = _D.black_frames, white_frames: int = _D.white_frames,
-                         ramp_levels=_D.ramp_levels, ramp_layout: str = _D.ramp_layout,
-                         camera_response: str = _D.camera_response,
-                         response_frames: int = _D.response_frames,
-                         camera_gamma: float = _D.camera_gamma,
-                         response_model: str = _D.response_model,
-                         ambient_smooth: float = _D.ambient_smooth) -> Calibration:
+def calibrate_radiometry(calib: Calibration, capture: Capturer,
+                         options: RadiometryOptions | None = None, **overrides) -> Calibration:
     """Measure the projector response, ambient Γ and albedo α; fill ``calib``'s radiometry.
 
     Parameters
     ----------
-    procam : ProCam (only used through ``capture``)
     calib : Calibration
-        With the geometry section (homographies, fold); filled in place and returned.
+        With the geometry section (homographies, folds); its radiometry section is filled in
+        place and it is returned.
     capture : Capturer
-        Counts the captures (stage ``"radiometry"``).
-    black_frames, white_frames, ramp_levels, ramp_layout, camera_response, response_frames,
-    camera_gamma, response_model, ambient_smooth
-        See :class:`RadiometryOptions` (their defaults are its defaults).
+        The calibration's capturer (the ProCam, counts, retries, progress, frame cache; stage
+        ``"radiometry"``).
+    options : RadiometryOptions, optional
+        The stage's options (default: :class:`RadiometryOptions`' defaults).
+    **overrides
+        Fields of :class:`RadiometryOptions` (``black_frames=5``, ``camera_response="srgb"``,
+        ...) replacing those of ``options``.
 
     Returns
     -------
     Calibration
-        ``response_lut`` (3, 256) float32, ``ambient_proj`` and ``albedo_proj``
-        (Hp, Wp, 3) float32 in camera-linear units, ``meta["radiometry"]`` with the fitted
-        ``gamma`` per channel, fit residuals and the coverage.
+        ``calib`` with ``camera_lut`` (3, 256), ``response_lut`` (3, 256) float32,
+        ``ambient_proj`` and ``albedo_proj`` (Hp, Wp, 3) float32 in camera-linear units,
+        ``meta["radiometry"]`` with the fitted ``gamma`` per channel, fit residuals and the
+        coverage.
 
     Raises
     ------
+    InputError
+        An option unknown or out of range (before any capture).
     CalibrationError
         When the white frame is not brighter than the black one where the projector lights
         the surface, when the camera saturates on white, or when no ramp patch is usable.
     """
+    check_capturer(capture)
+    o = stage_options(RadiometryOptions, options, **overrides)
+    black_frames, white_frames, ramp_levels = o.black_frames, o.white_frames, o.ramp_levels
+    ramp_layout, camera_response, response_frames = o.ramp_layout, o.camera_response, \
+        o.response_frames
+    camera_gamma, response_model, ambient_smooth = o.camera_gamma, o.response_model, \
+        o.ambient_smooth
     check_choice(response_model, ("auto", "gamma", "table"), "response_model")
     check_choice(ramp_layout, ("patches", "frames"), "ramp_layout")
     levels = np.array(sorted({int(v) for v in ramp_levels}), dtype=int)
@@ -294,6 +301,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     if black_frames < 1 or white_frames < 1 or response_frames < 1:
         raise InputError("black_frames, white_frames and response_frames must be >= 1")
     check_choice(camera_response, CAMERA_RESPONSES, "camera_response")
+    check_geometry(calib, "radiometry")
     wp, hp = calib.projector_size
     n_ramp = 1 if ramp_layout == "patches" else len(levels)
     auto = camera_response == "auto" and camera_gamma == 1.0
