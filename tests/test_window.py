@@ -254,7 +254,7 @@ def test_hardware_procam_stops_on_q(display, tmp_path):
         pattern = np.zeros((24, 32, 3), np.uint8)
         pc.capture(pattern)
         win.inject_key("q")
-        for _ in range(2):              # sticky: a retrying caller does not carry on
+        for _ in range(2):              # sticky: a later capture is refused too
             with pytest.raises(CaptureError, match="stopped from the projector window"):
                 pc.capture(pattern)
 

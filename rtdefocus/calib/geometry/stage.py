@@ -97,7 +97,7 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
     calib : None
         The calibration so far: none, this stage makes it.
     capture : Capturer
-        The calibration's capturer (the ProCam, counts, retries, progress, frame cache).
+        The calibration's capturer (the ProCam, counts, progress, frame cache).
     options : GeometryOptions, optional
         The stage's options (default: :class:`GeometryOptions`' defaults).
     **overrides

@@ -476,7 +476,7 @@ def calibrate_psf(calib: Calibration, capture: Capturer, options: PsfOptions | N
         With the geometry section (radiometry optional: its ``camera_lut`` linearises the
         frames); its psf section is filled in place and it is returned.
     capture : Capturer
-        The calibration's capturer (the ProCam, counts, retries, progress, frame cache; stage
+        The calibration's capturer (the ProCam, counts, progress, frame cache; stage
         ``"psf"``).
     options : PsfOptions, optional
         The stage's options (default: :class:`PsfOptions`' defaults).

@@ -262,7 +262,7 @@ def calibrate_radiometry(calib: Calibration, capture: Capturer,
         With the geometry section (homographies, folds); its radiometry section is filled in
         place and it is returned.
     capture : Capturer
-        The calibration's capturer (the ProCam, counts, retries, progress, frame cache; stage
+        The calibration's capturer (the ProCam, counts, progress, frame cache; stage
         ``"radiometry"``).
     options : RadiometryOptions, optional
         The stage's options (default: :class:`RadiometryOptions`' defaults).
