@@ -18,7 +18,7 @@ PROJ = (160, 120)
 
 
 def _lit(frame, rect=(0.15, 0.1, 0.7, 0.8)):
-    """Mean gray level inside the projected area of a fake camera frame (inner part)."""
+    """Mean grey level inside the projected area of a fake camera frame (inner part)."""
     h, w = frame.shape[:2]
     x, y, rw, rh = rect
     return float(frame[int((y + 0.2 * rh) * h):int((y + 0.8 * rh) * h),

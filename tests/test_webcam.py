@@ -58,7 +58,7 @@ def test_webcam_preset_combines_the_room_and_the_camera():
     assert plain.truth.distortion == (0.0, 0.0) and plain.noise == 0.006
     with pytest.raises(InputError, match="unknown webcam scene"):
         sim.VirtualProCam("webcam_attic", **SMALL)
-    # a sharp mid-gray capture is sRGB-encoded: decoding it gives the linear model's value
+    # a sharp mid-grey capture is sRGB-encoded: decoding it gives the linear model's value
     p = sim.VirtualProCam("webcam", noise=0.0, texture=0.0, distortion=(0.0, 0.0), **SMALL)
     frame = p.capture(np.full((240, 320, 3), 128, np.uint8), sharp=True)
     lit = p.truth.extra["camera_in_frame"]

@@ -182,7 +182,7 @@ def test_player_in_window_with_injected_keys(display, tmp_path):
 
 # --------------------------------------------------------------------------- hardware
 def _camera_file(path: Path, n: int, size=(160, 120), step=10) -> Path:
-    """A video whose frame i is uniformly gray at ``step * i``: a camera with a known history."""
+    """A video whose frame i is uniformly grey at ``step * i``: a camera with a known history."""
     w, h = size
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (w, h))
     assert writer.isOpened()

@@ -5,11 +5,11 @@ The model (DESIGN.md §3), in camera-linear light normalised to [0, 1]::
     O(x) = α(x) · (F P)(x) + Γ(x),        P = g(v) ∈ [0, 1],  g(0) = 0, g(255) = 1
 
 Captures (``capture`` counts them): a black frame and a white frame (each averaged over a few
-captures against camera noise) and one *patch ramp*: a grid of uniform gray patches, one level
+captures against camera noise) and one *patch ramp*: a grid of uniform grey patches, one level
 each. For any pixel inside a patch (farther than the blur from the patch's border) the ratio
 ``(I_v − I_black) / (I_white − I_black)`` is ``g(v)`` whatever the albedo, shading and ambient
 there, so a single capture gives the whole ramp, averaged over thousands of pixels. The three
-camera channels give the three projector channels (gray patches; no crosstalk assumed).
+camera channels give the three projector channels (grey patches; no crosstalk assumed).
 
 The camera's own response comes first (``camera_response``, :mod:`.camera_response`):
 ``"auto"`` (default) recovers it from captures alone by superposition — the ramp pattern
@@ -66,7 +66,7 @@ class RadiometryOptions:
     ----------
     black_frames, white_frames : captures averaged for the black and the white frame (camera
         noise).
-    ramp_levels : gray levels of the ramp, ints in 1..254 (and 255).
+    ramp_levels : grey levels of the ramp, ints in 1..254 (and 255).
     ramp_layout : ``"patches"``: all levels in one capture as a grid of patches (needs no
         interreflection between the walls); ``"frames"``: one full-frame capture per level.
     camera_response : ``"auto"`` (recover it by superposition), ``"srgb"`` or ``"linear"``
@@ -162,7 +162,7 @@ def to_projector(calib: Calibration, img_cam: np.ndarray,
 
 def ramp_pattern(projector_size: tuple[int, int], levels, grid: tuple[int, int] | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """A grid of uniform gray patches, one per level, in reading order.
+    """A grid of uniform grey patches, one per level, in reading order.
 
     Returns
     -------
@@ -200,7 +200,7 @@ def fit_gamma(levels: np.ndarray, values: np.ndarray, weights: np.ndarray | None
     ok = (t > 0) & (t < 1) & np.isfinite(y)
     t, y, w = t[ok], y[ok], w[ok]
     if t.size == 0:
-        raise CalibrationError("no usable gray-ramp level between 0 and 255 to fit the "
+        raise CalibrationError("no usable grey-ramp level between 0 and 255 to fit the "
                                "projector's response; use ramp_levels inside 1..254")
     pos = y > 1e-3  # log-domain start, then refine where the noise model is right
     g = float(np.polyfit(np.log(t[pos]), np.log(y[pos]), 1, w=np.sqrt(y[pos]))[0]) if \
@@ -405,7 +405,7 @@ def calibrate_radiometry(calib: Calibration, capture: Capturer,
     ok = np.isfinite(ratios[0])
     if ok.sum() < 2:
         raise CalibrationError(
-            f"only {int(ok.sum())} gray-ramp patches were seen clearly (need 2); the projector "
+            f"only {int(ok.sum())} grey-ramp patches were seen clearly (need 2); the projector "
             "lights too little of the camera's view — move the camera or use ramp_layout='frames'")
 
     # ---- response: fit, then the LUT
