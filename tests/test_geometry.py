@@ -132,6 +132,29 @@ def test_stage_options_and_pattern_limits():
         LinePatterns((80, 60), spacing=48)
 
 
+def test_every_stage_has_one_contract():
+    """calibrate_X(calib, capture, options=None, **overrides): bad input refused before any
+    capture, with the stage's valid options or what to pass instead."""
+    import inspect
+
+    from rtdefocus.calib import STAGE_TABLE
+    from rtdefocus.errors import InputTypeError
+
+    pc = sim.VirtualProCam("flat", **SMALL)
+    cap, calib = Capturer(pc), sim.oracle_calibration(pc)
+    for name, st in STAGE_TABLE.items():
+        assert list(inspect.signature(st.run).parameters) == \
+            ["calib", "capture", "options", "overrides"], name
+        so_far = None if name == "geometry" else calib
+        with pytest.raises(InputError, match=rf"unknown {st.options.__name__} options \['nope'\]"):
+            st.run(so_far, cap, nope=1)
+        with pytest.raises(InputTypeError, match="capture must be a Capturer"):
+            st.run(so_far, pc)
+    with pytest.raises(InputTypeError, match="run the geometry stage first"):
+        STAGE_TABLE["psf"].run(None, cap)
+    assert cap.total == 0
+
+
 # --------------------------------------------------------------------------- kinks
 def test_kink_found_at_a_sharp_bend_and_not_on_a_smooth_one():
     rng = np.random.default_rng(3)
