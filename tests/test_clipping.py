@@ -96,7 +96,7 @@ def test_albedo_where_white_clips_is_filled_from_its_wall(caplog):
     calib = truth_geometry(procam)
     blind = Blind(procam)
     with caplog.at_level(logging.WARNING):
-        calibrate_radiometry(blind, calib, capture=Capturer(blind), camera_response="linear")
+        calibrate_radiometry(calib, Capturer(blind), camera_response="linear")
     assert "filled from their walls' unclipped pixels" in caplog.text
     white = Capturer(blind).mean(np.full((150, 200, 3), 255, np.uint8), 4)
     truth = procam.truth.albedo_proj

@@ -1,4 +1,4 @@
-"""Counting, retrying, progress-reporting wrapper around ``ProCam.capture`` for calibration."""
+"""Counting, checking, progress-reporting wrapper around ``ProCam.capture`` for calibration."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import CaptureError, CaptureSetError, InputError
+from ..errors import CaptureError, CaptureSetError, InputError, InputTypeError
 from ..procam import ProCam, check_pattern
+from .file import Calibration
 
 log = logging.getLogger(__name__)
 
@@ -19,18 +20,21 @@ ProgressFn = Callable[[str, int, int], None]
 class Capturer:
     """Calls ``procam.capture`` for the calibration stages.
 
-    Counts captures per stage (``counts``), checks each returned frame, retries a failed one
-    ``retries`` times and then raises :class:`CaptureError` naming the pattern and the cause.
+    Counts captures per stage (``counts``) and checks each returned frame. It does not retry:
+    a failed camera read is retried where it happens (:meth:`rtdefocus.hardware.Camera.read`,
+    ``retries``), a frame that does not show the pattern is taken again by the ProCam that
+    can tell (:class:`rtdefocus.hardware.HardwareProCam`, ``recaptures``). A capture that
+    fails, or returns a frame of the wrong shape or type, is one :class:`CaptureError` naming
+    the stage, the pattern and the cause.
     """
 
-    def __init__(self, procam: ProCam, progress: ProgressFn | None = None, retries: int = 2):
+    def __init__(self, procam: ProCam, progress: ProgressFn | None = None):
         for attr in ("projector_size", "camera_size", "capture"):
             if not hasattr(procam, attr):
                 raise InputError(f"{type(procam).__name__} is not a ProCam: it has no {attr!r} "
                                  "(see rtdefocus.ProCam)")
         self.procam = procam
         self.progress = progress
-        self.retries = retries
         self.counts: dict[str, int] = {}
         #: The first all-white and all-black frames of the calibration (uint8), kept as the
         #: reference :mod:`.diagnose` compares fresh frames with when a stage fails.
@@ -66,24 +70,19 @@ class Capturer:
     def __call__(self, pattern: np.ndarray) -> np.ndarray:
         pattern = check_pattern(pattern, self.procam.projector_size)
         wc, hc = self.procam.camera_size
-        last: Exception | None = None
-        for attempt in range(self.retries + 1):
-            try:
-                frame = np.asarray(self.procam.capture(pattern))
-                if frame.shape != (hc, wc, 3) or frame.dtype != np.uint8:
-                    raise CaptureError(f"camera returned {frame.shape} {frame.dtype}, expected "
-                                       f"({hc}, {wc}, 3) uint8")
-                break
-            except CaptureSetError:
-                raise                    # a saved set gives the same answer every time
-            except Exception as exc:  # a camera read can fail transiently: retry, then report
-                last = exc
-                log.warning("capture %d of stage %s failed (attempt %d): %s",
-                            self._done + 1, self.stage, attempt + 1, exc)
-        else:
-            raise CaptureError(f"capture failed {self.retries + 1} times during {self.stage} "
-                               f"(pattern {self._done + 1}): {last}. Check the camera connection "
-                               "and that nothing else is using it.") from last
+        where = f"capture {self._done + 1} of stage {self.stage}"
+        try:
+            frame = np.asarray(self.procam.capture(pattern))
+        except CaptureSetError:
+            raise                       # a saved set's answer: already names the capture
+        except CaptureError as exc:     # already says what to check
+            raise CaptureError(f"{where}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 -- any ProCam's failure, reported as one error
+            raise CaptureError(f"{where} failed: {exc}. Check the camera connection and that "
+                               "nothing else is using it.") from exc
+        if frame.shape != (hc, wc, 3) or frame.dtype != np.uint8:
+            raise CaptureError(f"{where}: the camera returned {frame.shape} {frame.dtype}, "
+                               f"expected ({hc}, {wc}, 3) uint8 (ProCam.camera_size)")
         if pattern.min() == 255:
             self.last_white = frame.copy()
             if self.first_white is None:
@@ -148,3 +147,19 @@ class Capturer:
     def _key(self, key: str):
         exposure = self.exposure
         return key if exposure is None else (key, exposure)
+
+
+
+def check_capturer(capture) -> Capturer:
+    """``capture`` if it is a :class:`Capturer`, else an InputTypeError saying how to make one."""
+    if not isinstance(capture, Capturer):
+        raise InputTypeError(f"capture must be a Capturer (rtdefocus.calib.Capturer(procam)); "
+                             f"got {type(capture).__name__}")
+    return capture
+
+
+def check_geometry(calib: Calibration, stage: str) -> None:
+    """InputTypeError unless ``calib`` is a Calibration (the geometry stage's result)."""
+    if not isinstance(calib, Calibration):
+        raise InputTypeError(f"the {stage} stage fills a Calibration with its geometry: run the "
+                             f"geometry stage first; got {type(calib).__name__}")
