@@ -38,7 +38,9 @@ def test_clipping_dots_give_the_unclipped_kernels(pair):
     procam, calib, start = runs["clipping"]
     assert procam.exposure == pytest.approx(0.6 * start)
     assert calib.meta["radiometry"]["exposure_lowered"] == pytest.approx(0.6)
+    assert calib.meta["exposure"] == {"from": start, "to": procam.exposure}
     assert runs["cubicle"][1].meta["radiometry"]["exposure_lowered"] is None
+    assert "exposure" not in runs["cubicle"][1].meta
     clipped = kernel_medians(calib, procam.truth)[0]
     plain = kernel_medians(runs["cubicle"][1], runs["cubicle"][0].truth)[0]
     assert clipped <= 1.2 * plain, f"kernel error {clipped:.4f} against {plain:.4f} unclipped"

@@ -80,7 +80,9 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     Returns
     -------
     Calibration
-        With ``meta["captures"]`` (per stage) and ``meta["seconds"]`` (per stage).
+        With ``meta["captures"]`` (per stage) and ``meta["seconds"]`` (per stage); where the
+        calibration turned a clipping camera's exposure down, ``meta["exposure"]`` (``from``,
+        ``to``: the camera stays at ``to``).
 
     Raises
     ------
@@ -153,6 +155,10 @@ def _run_stages(procam, chosen: dict, per_stage: dict, cap: Capturer) -> Calibra
             raise explain(exc, cap, name) from exc
         timings[name] = time.perf_counter() - t0
     calib.meta["captures"] = dict(cap.counts)
+    if cap.exposure_changes:
+        # The camera was turned down so its frames do not clip; it stays there.
+        calib.meta["exposure"] = {"from": cap.exposure_changes[0][0],
+                                  "to": cap.exposure_changes[-1][1]}
     calib.meta["seconds"] = {k: round(v, 2) for k, v in timings.items()}
     if hasattr(procam, "setup_record"):
         # Real hardware: the monitor and camera, so later commands find them again. A record

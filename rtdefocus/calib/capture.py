@@ -44,6 +44,8 @@ class Capturer:
         #: camera's exposure drifted over a stage that took both (the geometry stage's
         #: ``white`` and ``white_end``).
         self.last_white: np.ndarray | None = None
+        #: (before, after) of every exposure change the calibration made (:meth:`set_exposure`).
+        self.exposure_changes: list[tuple[float | None, float | None]] = []
         self.stage = "capture"
         self._done = 0
         self._total = 0
@@ -121,6 +123,7 @@ class Capturer:
         old = self.exposure
         self.procam.set_exposure(float(value))
         log.info("camera exposure %s -> %s (asked %.4g)", old, self.exposure, value)
+        self.exposure_changes.append((old, self.exposure))
         return self.exposure
 
     def mean_frame(self, key: str, pattern: np.ndarray, n: int) -> np.ndarray:

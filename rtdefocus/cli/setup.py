@@ -368,6 +368,12 @@ def cmd_calibrate(args) -> int:
             if g.get("fold_disagreement_px") is not None else "")
     print(f"geometry: {calib.n_planes} plane(s), reprojection RMS {rms} camera px{fold}, "
           f"{g.get('lines_found')} of {g.get('lines_expected')} lines")
+    exposure = calib.meta.get("exposure")
+    if exposure:
+        print(f"the white frame clipped: the camera's exposure was turned down from "
+              f"{exposure['from']:.4g} to {exposure['to']:.4g}, and stays there")
+    if args.save_captures:
+        print(f"kept the captures in {args.save_captures} (redo with --from-captures)")
     print(f"wrote {out} (sections: {', '.join(calib.sections())})")
     print(f"wrote {picture} and {camera_picture}")
     return 0
