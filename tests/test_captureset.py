@@ -143,3 +143,17 @@ def test_correspondences_refuse_a_bad_map(true_map):
         rd.calibrate_from_correspondences(broken, valid, (200, 150))
     with pytest.raises(InputError, match="bool mask"):
         rd.calibrate_from_correspondences(xy, valid.astype(np.uint8), (200, 150))
+
+
+def test_a_new_set_over_an_old_one_drops_the_old_index_first(saved, tmp_path):
+    """Until the new index is written the folder must not look like a whole set."""
+    folder = _copy(saved, tmp_path)
+    recorder = CaptureRecorder(rd.sim.VirtualProCam("flat", **SIZES), folder)
+    assert not (folder / INDEX_NAME).exists()
+    with pytest.raises(CaptureSetError, match="no index: the saving did not finish"):
+        rd.calibrate_from_captures(folder)
+    recorder.capture(np.zeros((150, 200, 3), np.uint8))
+    recorder.finish({}, ("geometry",))
+    index = json.loads((folder / INDEX_NAME).read_text())
+    assert len(index["captures"]) == 1 and index["exposure_control"] is True
+    assert index["captures"][0]["exposure"] == pytest.approx(recorder.procam.exposure)
