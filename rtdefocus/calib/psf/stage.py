@@ -79,8 +79,9 @@ from ..capture import Capturer, check_capturer, check_geometry
 from ..file import Calibration
 from ..geometry.lens import lit_mask_observed
 from ..options import stage_options
-from ..radiometry.exposure import CLIPPED, check_clipping, lower_exposure
+from ..radiometry.exposure import check_clipping, lower_exposure
 from ..radiometry.stage import linearize_camera
+from .channels import ChannelSum
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
     MIN_SNR,
@@ -219,7 +220,7 @@ class PsfRun:
                   for key, value in (("black", 0), ("white", 255))]
         lit = lit_mask_observed(calib)
         if lower_exposure(capture, lit, frames[1]) is None:
-            check_clipping(frames[1], lit, "psf")
+            check_clipping(frames[1], lit, "psf", every=True)
         norm = frame_normaliser(calib, capture, camera_lut)
         # 1. pilot (per plane, and a blind single-region fit for the cross-fold baseline)
         model = pilot_radius(calib, capture, spacing=options.pilot_spacing,
@@ -440,25 +441,25 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     for key, value in (("black", 0), ("white", 255)):
         n = max(capture.frame_count(key), 2)
         codes = capture.mean_frame(key, np.full((hp, wp, 3), value, np.uint8), n)
-        frames.append(linearize_camera(codes, camera_lut).sum(axis=2))
-    # A clipped pixel is no data (any channel at or near full scale): where the white frame
-    # clips, the dots' light cannot be put against it.
-    white_clipped = (codes >= CLIPPED).any(axis=2)
-    black, white = frames
+        frames.append(linearize_camera(codes, camera_lut))
+    sides = camera_sides(calib)
+    # A clipped channel is no data: the sum is made up from the others where the white frame
+    # clips in some channels, and where it clips in all the dots' light has nothing to go by.
+    channels = ChannelSum(codes, frames[0], frames[1], sides)
+    black, white = frames[0].sum(axis=2), channels(frames[1])
     span = white - black
     # Divide by the white frame's own light, except where the blur makes it fall off (the
     # frame's edges): there by the nearby full level (a max filter over ~2 blur diameters),
     # so the faint spill beyond the edge is not amplified into noise. The full level is taken
     # within each wall only: across the fold the other wall's (brighter) level would divide
     # the dimmer wall's side of every kernel near the fold and bend it.
-    sides = camera_sides(calib)
     env = np.zeros_like(span)
     for side in sides:
         e = cv2.GaussianBlur(ndimage.maximum_filter(np.where(side, span, 0.0), size=31),
                              (0, 0), 5.0)
         env = np.where(side, e, env)
     div = np.maximum(span, 0.9 * env)
-    ok = (env > 0.05 * float(np.percentile(span, 99))) & ~white_clipped
+    ok = (env > 0.05 * float(np.percentile(span, 99))) & ~channels.dead
     inv = np.where(ok, 1.0 / np.where(ok, div, 1.0), 0.0)
     # The background to take off: B / (W − B) is the ambient (and projector black) over the
     # projector's light, smooth within a wall since the albedo and its texture cancel. Taken
@@ -474,8 +475,8 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     bg = bg.astype(np.float32)
 
     def normalise(frame: np.ndarray) -> np.ndarray:
-        out = linearize_camera(frame, camera_lut).sum(axis=2) * inv - bg
-        clipped = (np.asarray(frame) >= CLIPPED).any(axis=2)
+        out = channels(linearize_camera(frame, camera_lut)) * inv - bg
+        clipped = channels.clipped(frame)
         return np.where(clipped, np.float32(np.nan), out) if clipped.any() else out
 
     return normalise

@@ -82,24 +82,27 @@ def check_exposure(white: np.ndarray, lit: np.ndarray, saturated: float = 250.0,
             "but not clipped, then calibrate again")
 
 
-def clipped_share(white: np.ndarray, lit: np.ndarray) -> float:
+def clipped_share(white: np.ndarray, lit: np.ndarray, every: bool = False) -> float:
     """Share of the ``lit`` camera pixels where the frame ``white`` (codes) clips in any
-    channel (:data:`CLIPPED`)."""
+    channel (:data:`CLIPPED`; ``every``: in every channel)."""
     m = np.asarray(lit, bool)
     if not m.any():
         return 0.0
-    return float((np.asarray(white)[m] >= CLIPPED).any(axis=1).mean())
+    clipped = np.asarray(white)[m] >= CLIPPED
+    return float((clipped.all(axis=1) if every else clipped.any(axis=1)).mean())
 
 
-def check_clipping(white: np.ndarray, lit: np.ndarray, stage: str) -> None:
+def check_clipping(white: np.ndarray, lit: np.ndarray, stage: str, every: bool = False) -> None:
     """Raise :class:`CalibrationError` when the white frame (codes) clips on more than 5 % of
-    the ``lit`` camera pixels: a stage that leaves clipped pixels out would have too little
-    left to measure there (a camera the calibration cannot turn down)."""
-    share = clipped_share(white, lit)
+    the ``lit`` camera pixels (``every``: in every channel, for a stage that reads a pixel's
+    unclipped channels): a stage that leaves clipped pixels out would have too little left
+    to measure there (a camera the calibration cannot turn down)."""
+    share = clipped_share(white, lit, every)
     if share > _CLIP_FRACTION:
         raise CalibrationError(
             f"the camera is over-exposed: the white frame clips at {100 * share:.0f}% of the lit "
-            f"pixels, which the {stage} stage cannot measure. Lower the camera's exposure or gain "
+            f"pixels{' in every channel' if every else ''}, which the {stage} stage cannot "
+            "measure. Lower the camera's exposure or gain "
             "(or the projector's brightness) until the white is bright but not clipped, or give "
             "the calibration the camera's exposure control (a ProCam with `exposure` and "
             "`set_exposure`, e.g. `rtdefocus calibrate --lock`), then calibrate again")
