@@ -15,7 +15,10 @@ Three tables, printed as markdown:
 * **correspondences**: ``rd.calibrate_from_correspondences`` on the simulator's own camera ->
   projector map of the cubicle: planes, the homographies' error in projector px (every 4th
   projector pixel of each true plane, through the true homography and back through the
-  calibrated one) and seconds.
+  calibrated one) and seconds;
+* **a channel that clips** (``--channels`` prints only this one): the geometry and PSF
+  stages, no exposure control, on the cubicle seen by a plain camera and by one whose red
+  channel is 1.6x too sensitive (a ``post`` of tests/helpers.Blind).
 """
 
 from __future__ import annotations
@@ -98,16 +101,41 @@ def correspondences(size, camera) -> None:
           f"{err.max():.4f} | {seconds:.1f} |")
 
 
+def _red_hot(index, pattern, frame):
+    f = frame.astype(np.float32)
+    f[..., 0] *= 1.6
+    return np.clip(np.rint(f), 0, 255).astype(np.uint8)
+
+
+def channels(size, camera) -> None:
+    print("| camera (geometry and psf stages, no exposure control) | clipped R / G / B on white "
+          "| kernel L2 inside | near fold |")
+    print("|---|---|---|---|")
+    for name, post in (("plain", None), ("red channel 1.6x too sensitive", _red_hot)):
+        procam = rd.sim.VirtualProCam("cubicle", projector_size=size, camera_size=camera)
+        calib = rd.calibrate(Blind(procam, post), stages=("geometry", "psf"))
+        white = Blind(procam, post).capture(np.full((size[1], size[0], 3), 255, np.uint8))
+        lit = white.max(axis=2) > 30
+        share = " / ".join(f"{100 * v:.0f} %" for v in (white >= 254)[lit].mean(axis=0))
+        inside, near = kernel_medians(calib, procam.truth)
+        print(f"| {name} | {share} | {inside:.4f} | {near:.4f} |")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--size", type=parse_size, default=(800, 600), help="projector WxH "
                    "(the camera is 1.6x it)")
+    p.add_argument("--channels", action="store_true", help="only the table of a camera whose "
+                   "red channel clips")
     args = p.parse_args(argv)
     size = args.size
     camera = (int(round(size[0] * 1.6)), int(round(size[1] * 1.6)))
-    saved_and_clipped(size, camera)
-    print()
-    correspondences(size, camera)
+    if not args.channels:
+        saved_and_clipped(size, camera)
+        print()
+        correspondences(size, camera)
+        print()
+    channels(size, camera)
     return 0
 
 
