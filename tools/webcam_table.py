@@ -34,12 +34,16 @@ def main() -> None:
                     help="projector WxH (default: the preset's)")
     ap.add_argument("--photos", type=int, default=2,
                     help="photographs the compensation gain is averaged over (0: no gain)")
+    ap.add_argument("--dense", choices=("on", "off"), default=None,
+                    help="dense structured light on or off (default: the geometry stage's)")
     ap.add_argument("--flat", action="store_true",
                     help="calibrate exact planes (no residual field), to see what it gains")
     args = ap.parse_args()
     kw = {"distortion": (0.0, 0.0)} if args.no_distortion else {}
     print(HEADER)
-    calib_kw = {"residual": False} if args.flat else None
+    calib_kw = {"residual": False} if args.flat else {}
+    if args.dense is not None:
+        calib_kw["dense"] = args.dense == "on"
     for p in args.presets:
         print(measure(p, args.size, args.photos, calib_kw, **kw), flush=True)
 

@@ -45,6 +45,7 @@ from ...planar import (
     tls_line,
 )
 from ...residual import displacement, fit_residual, proj_from_cam
+from .dense_fit import fit_plane_homography, plane_samples, prefilter, unfit_region
 from .fold import Kink, find_kinks, fit_fold, fold_to_projector
 from .homography import fit_homography, line_crossings
 from .planes import (
@@ -88,6 +89,8 @@ class GeometryDetail:
     fold_segments_cam : per fold, (2, 2) ends of its visible part in the camera (or None).
     candidates : per RANSAC candidate, its evidence (dict) and ``H_cam_from_proj``.
     residual_inliers : (n,) bool the crossings the residual fields fit (None without them).
+    unfit_mask : (Hc, Wc) bool camera pixels of the dense map that fit no plane (None without
+        a dense map; :func:`~.dense_fit.unfit_region`).
     """
 
     detection: LineDetection
@@ -104,6 +107,7 @@ class GeometryDetail:
     fold_segments_cam: list = field(default_factory=list)
     candidates: list = field(default_factory=list)
     residual_inliers: np.ndarray | None = None
+    unfit_mask: np.ndarray | None = None
 
 
 def check_planes_option(planes) -> int | None:
@@ -190,8 +194,12 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     _check_count(want, kept, evidence)
     n = len(kept)
 
+    dense = detection.dense
     if n == 1:
-        H, inl, rms = fit_homography(proj, cam, threshold=ransac_threshold, what="the plane")
+        dset = plane_samples(dense, None, 1, band)[0] if dense is not None else None
+        H, inl, rms = (fit_homography(proj, cam, threshold=ransac_threshold, what="the plane")
+                       if dset is None else
+                       fit_plane_homography(dset, proj, cam, ransac_threshold, "the plane"))
         check_fit(inl, rms, "the plane", ransac_threshold)
         Hs = H[None]
         folds_proj = folds_cam = np.zeros((0, 3))
@@ -203,7 +211,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         detail.fold_inliers = np.zeros(len(kinks), bool)
         detail.kink_fold = np.full(len(kinks), -1)
         layout_proj = PlaneLayout(1)
-        ctrl = [plane_residual(H, proj, cam, projector_size, res_thr)] if residual else None
+        ctrl = [dense_residual(H, proj, cam, dset, projector_size, res_thr)] if residual else None
     else:
         raw = label_crossings([cands[i][0] for i in kept], proj, cam, ransac_threshold)
         coarse, _ = clean_labels(grid, raw, n)
@@ -211,7 +219,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
          kink_fold, segs, ctrl) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
                                               band, ransac_threshold,
                                               projector_size if residual else None,
-                                              max_fold_disagreement, res_thr)
+                                              max_fold_disagreement, res_thr, dense)
         # ---- numbering (docs/internals.md)
         layout_proj = PlaneLayout(n, folds_proj, fold_planes)
         order = _plane_order(layout_proj, projector_size)
@@ -280,6 +288,15 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
                  fold_kinks=int(sum(f["kinks"] for f in fold_stats)))
     if n == 2:
         stats["fold_kink_rms_px"] = fold_stats[0]["kink_rms_px"]
+    if dense is not None:
+        detail.unfit_mask, stats["unfit"] = unfit_region(
+            dense, Hs, layout_proj, parts.get("residual_cam"), projector_size)
+        stats["dense"] = {"valid_fraction": round(float(dense.valid.sum()) /
+                                                  max(int(dense.lit.sum()), 1), 4)}
+        if stats["unfit"]["pixels"]:
+            log.info("geometry: %.1f %% of the lit camera view fits no plane (camera box %s); "
+                     "it is masked out of the fit", 100 * stats["unfit"]["fraction"],
+                     stats["unfit"]["bbox_cam"])
     return parts, stats, detail
 
 
@@ -334,10 +351,26 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     return ctrl, keep, rms, biggest, rms_flat
 
 
+def dense_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray, dense_set,
+                   projector_size: tuple[int, int], threshold: float):
+    """:func:`plane_residual` fitted to the plane's dense samples (``dense_set`` = (proj, cam),
+    or None: its crossings), its inliers given over the crossings (``proj``, ``cam``), which
+    the consistency check and the diagnostics read."""
+    if dense_set is None or len(dense_set[0]) < 200:
+        return plane_residual(H, proj, cam, projector_size, threshold)
+    dp, dc = dense_set
+    ok = prefilter(H, dp, dc, proj, cam, threshold)
+    ctrl, _, rms, biggest, rms_flat = plane_residual(H, dp[ok], dc[ok], projector_size, threshold)
+    err = np.linalg.norm(cam - apply_h(H, proj) - displacement(ctrl, proj[:, 0], proj[:, 1],
+                                                                projector_size), axis=1)
+    return ctrl, err <= threshold, rms, biggest, rms_flat
+
+
 def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
-                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None):
+                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None, dense=None):
     """Steps 3-6 for n >= 2 planes, in the model selection's numbering; ``residual_size``
-    (the projector size) fits the residual fields (else None is returned for them)."""
+    (the projector size) fits the residual fields (else None is returned for them); with a
+    ``dense`` map each plane's homography and field are fitted to its dense samples."""
     kpts = np.array([kk.point_cam_xy for kk in kinks]).reshape(-1, 2)
     kink_fold = np.full(len(kinks), -1)
     folds_cam, pairs, fold_stats = [], [], []
@@ -374,11 +407,14 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
     lab = layout_cam.label(cam[:, 0], cam[:, 1]).astype(np.int64)
     out = layout_cam.outside(cam[:, 0], cam[:, 1])
     plane = np.where(out[lab, np.arange(len(cam))] < -band, lab, -1).astype(np.int8)
+    dsets = plane_samples(dense, layout_cam, n, band) if dense is not None else [None] * n
     fits = []
     for p in range(n):
         sel = plane == p
         what = f"plane {p + 1} of {n}"
-        H, inl, rms = fit_homography(proj[sel], cam[sel], threshold=threshold, what=what)
+        H, inl, rms = (fit_homography(proj[sel], cam[sel], threshold=threshold, what=what)
+                       if dsets[p] is None else
+                       fit_plane_homography(dsets[p], proj[sel], cam[sel], threshold, what))
         check_fit(inl, rms, what, threshold)
         fits.append((H, inl, rms))
     Hs = np.stack([f[0] for f in fits])
@@ -386,8 +422,8 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
     ctrl = None
     if residual_size is not None:
         rt = threshold if residual_threshold is None else residual_threshold
-        ctrl = [plane_residual(Hs[p], proj[plane == p], cam[plane == p], residual_size, rt)
-                for p in range(n)]
+        ctrl = [dense_residual(Hs[p], proj[plane == p], cam[plane == p], dsets[p], residual_size,
+                               rt) for p in range(n)]
     folds_proj, segs = [], []
     for j, (a, b) in enumerate(pairs):
         seg = _visible_fold(layout_cam, j, valid)

@@ -157,7 +157,8 @@ def undistort_line(ln: DetectedLine, k: tuple[float, float],
 def undistort_detection(det: LineDetection, k: tuple[float, float],
                         camera_size: tuple[int, int]) -> LineDetection:
     """The whole line detection in ideal camera pixels: every ridge (:func:`undistort_line`),
-    the frames and the valid mask resampled (so the diagnostics draw on a matching picture)."""
+    the frames, the valid mask and the dense map resampled (so the diagnostics draw on a
+    matching picture)."""
     lines = [undistort_line(ln, k, camera_size) for ln in det.lines]
     return replace(
         det, lines=[ln for ln in lines if len(ln.t) > 0],
@@ -165,7 +166,8 @@ def undistort_detection(det: LineDetection, k: tuple[float, float],
         black=undistort_image(det.black, k, camera_size),
         valid=undistort_image(det.valid, k, camera_size, cv2.INTER_NEAREST),
         white_rgb=undistort_image(det.white_rgb, k, camera_size),
-        stats=dict(det.stats))
+        stats=dict(det.stats),
+        dense=None if det.dense is None else det.dense.resampled(*observed_maps(k, camera_size)))
 
 
 def max_displacement(k, camera_size: tuple[int, int]) -> float:

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from ...errors import CalibrationError, InputError
 from ...procam import ProCam
 from ..capture import Capturer
 from ..file import Calibration
+from .dense import DenseDecoder, DensePatterns
 from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
@@ -64,6 +65,11 @@ class GeometryOptions:
         (:data:`NEARLY_FLAT_FACTOR` × ``ransac_threshold``, and as many times the fold
         disagreement) and the residual. False: exact
         planes (the paper's model).
+    dense : also project the dense patterns (:mod:`.dense`: Gray code plus phase shift in both
+        directions, :meth:`~.dense.DensePatterns.count` more captures) and fit each plane's
+        homography and residual field to every valid camera pixel's projector coordinates
+        (:mod:`.dense_fit`); the line crossings still find the planes and folds. The pixels
+        no plane fits (a far wall through a gap) are masked out and shown.
     """
 
     line_spacing: int = 48
@@ -76,6 +82,7 @@ class GeometryOptions:
     undistort: bool = True
     planes: int | str = "auto"
     residual: bool = True
+    dense: bool = False
 
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
@@ -95,7 +102,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                        min_kink_deg: float = _D.min_kink_deg, fold_band: float | None = _D.fold_band,
                        ransac_threshold: float = _D.ransac_threshold,
                        undistort: bool = _D.undistort, planes: int | str = _D.planes,
-                       residual: bool = _D.residual) -> Calibration:
+                       residual: bool = _D.residual, dense: bool = _D.dense) -> Calibration:
     """Learn the set-up's geometry through ``capture`` only.
 
     Parameters
@@ -104,7 +111,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     capture : the calibration's :class:`Capturer` (counts, retries, progress); a fresh one
         when None.
     line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold,
-    undistort, planes, residual : see :class:`GeometryOptions` (their defaults are its
+    undistort, planes, residual, dense : see :class:`GeometryOptions` (their defaults are its
     defaults).
 
     Returns
@@ -133,12 +140,25 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     pats = LinePatterns(tuple(procam.projector_size), int(line_spacing), int(line_phases),
                         int(line_width))
     seq = pats.sequence()
+    dense_dec = DenseDecoder(DensePatterns(pats.projector_size)) if dense else None
+    if dense_dec is not None:       # before the closing white frame, which checks stability
+        seq = seq[:-1] + dense_dec.patterns.sequence() + seq[-1:]
     cap.begin("geometry", len(seq) * int(samples))
     det = LineDetector(pats)
     for name, pattern in seq:
         frame = cap(pattern) if samples == 1 else cap.mean(pattern, int(samples))
-        det.add(name, frame)
+        if name.startswith("d"):        # dense patterns (no line pattern's name starts so)
+            if det.white is None:
+                raise InputError("the white frame must be captured before the dense patterns")
+            if not dense_dec.ready:
+                dense_dec.set_frames(det.black, det.white)
+            dense_dec.add(name, frame)
+        else:
+            det.add(name, frame)
     detection = det.result()
+    if dense_dec is not None:
+        detection = replace(detection, dense=dense_dec.result())
+    n_captures = len(seq)
     camera_size = tuple(procam.camera_size)
     band = float(fold_band) if fold_band is not None else float(det.half)
 
@@ -155,8 +175,8 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
                    "fold_band": band, "ransac_threshold": threshold, "planes": planes,
-                   "residual": bool(residual)}
-        return _calibration(parts, stats, detail, pats, options, t_start)
+                   "residual": bool(residual), "dense": bool(dense)}
+        return _calibration(parts, stats, detail, pats, options, t_start, n_captures)
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
     try:
@@ -182,11 +202,11 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
 
 
 def _calibration(parts: dict, fit_stats: dict, detail: GeometryDetail, pats: LinePatterns,
-                 options: dict, t_start: float) -> Calibration:
+                 options: dict, t_start: float, n_patterns: int) -> Calibration:
     """The Calibration and its ``meta["geometry"]`` from one :func:`fit_geometry`."""
     detection = detail.detection
     camera_size = tuple(detection.valid.shape[::-1])
-    stats: dict = {"captures": pats.count() * options["samples"], "patterns": pats.count(),
+    stats: dict = {"captures": n_patterns * options["samples"], "patterns": n_patterns,
                    "lines_found": detection.stats["lines_found"],
                    "lines_expected": detection.stats["lines_expected"],
                    "ridge_points": detection.stats["points"],
