@@ -12,6 +12,8 @@ the geometry picture and counted in ``meta["geometry"]["unfit"]``.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
@@ -32,8 +34,13 @@ UNFIT_PX = 3.0
 def plane_samples(dense: DenseMap, layout_cam: PlaneLayout | None, n: int, band: float,
                   step: int = SAMPLE_STEP) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per plane, the dense samples (proj_xy (m, 2), cam_xy (m, 2)) inside it by more than
-    ``band`` camera px from each of its folds (``layout_cam`` None: one plane, all samples)."""
-    cam, proj = dense.samples(step)
+    ``band`` camera px from each of its folds and half that from the edge of the valid map
+    (where the blur mixes in the dark: the phase is biased there); ``layout_cam`` None: one
+    plane."""
+    r = max(1, int(round(band / 2)))
+    core = cv2.erode(dense.valid.astype(np.uint8),
+                     cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    cam, proj = replace(dense, valid=core.astype(bool)).samples(step)
     if layout_cam is None or n == 1:
         return [(proj, cam)]
     lab = layout_cam.label(cam[:, 0], cam[:, 1]).astype(np.int64)

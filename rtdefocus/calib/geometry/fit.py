@@ -321,7 +321,7 @@ def _check_count(want: int | None, kept: list[int], evidence) -> None:
 
 
 def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
-                   projector_size: tuple[int, int], threshold: float):
+                   projector_size: tuple[int, int], threshold: float, min_gain: float = 2.0):
     """One plane's residual field from its crossings (step 6): (ctrl (gy, gx, 2), inliers (N,)
     bool, RMS camera px of the inliers after the field, largest |field| over the frame (px),
     RMS of the same crossings off the homography alone).
@@ -329,8 +329,8 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     What the homography leaves is fitted by :func:`rtdefocus.residual.fit_residual`; crossings
     more than ``threshold`` off homography plus field are left out and the field refitted
     (twice), so a stray crossing does not bend the wall. A field that does not halve the
-    homography's misfit, or stays within :data:`MIN_RESIDUAL_PX`, is noise: the plane is kept
-    exactly flat (zero field)."""
+    homography's misfit (``min_gain``), or stays within :data:`MIN_RESIDUAL_PX`, is noise: the
+    plane is kept exactly flat (zero field)."""
     r = cam - apply_h(H, proj)
     norm = np.linalg.norm(r, axis=1)
     keep = norm <= max(4.0 * threshold, 2.0 * float(np.percentile(norm, 90)) if len(norm) else 0)
@@ -344,7 +344,7 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     gx, gy = np.meshgrid(np.linspace(0, wp - 1, 33), np.linspace(0, hp - 1, 25))
     biggest = float(np.linalg.norm(displacement(ctrl, gx.ravel(), gy.ravel(), projector_size),
                                    axis=1).max())
-    if not (rms_flat > 2.0 * rms and biggest > MIN_RESIDUAL_PX):
+    if not (rms_flat > min_gain * rms and biggest > MIN_RESIDUAL_PX):
         ctrl, biggest = np.zeros_like(ctrl), 0.0
         keep = norm <= threshold
         rms = rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
@@ -360,10 +360,20 @@ def dense_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray, dense_set,
         return plane_residual(H, proj, cam, projector_size, threshold)
     dp, dc = dense_set
     ok = prefilter(H, dp, dc, proj, cam, threshold)
-    ctrl, _, rms, biggest, rms_flat = plane_residual(H, dp[ok], dc[ok], projector_size, threshold)
+    ctrl, _, rms, biggest, rms_flat = plane_residual(H, dp[ok], dc[ok], projector_size, threshold,
+                                                     min_gain=1.0)
+    # Whether the field is worth keeping is the crossings' call (as without the dense map):
+    # they are precise to a few hundredths of a pixel, a dense sample only to a tenth or so.
+    flat = np.linalg.norm(cam - apply_h(H, proj), axis=1)
     err = np.linalg.norm(cam - apply_h(H, proj) - displacement(ctrl, proj[:, 0], proj[:, 1],
                                                                 projector_size), axis=1)
-    return ctrl, err <= threshold, rms, biggest, rms_flat
+    keep = err <= threshold
+    if keep.any() and not float(np.sqrt(np.mean(flat[keep] ** 2))) > \
+            2.0 * float(np.sqrt(np.mean(err[keep] ** 2))):
+        ctrl, biggest = np.zeros_like(ctrl), 0.0
+        keep = flat <= threshold
+        rms = rms_flat
+    return ctrl, keep, rms, biggest, rms_flat
 
 
 def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
