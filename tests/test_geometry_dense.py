@@ -178,3 +178,22 @@ def test_dense_fit_of_a_sagging_wall_is_at_least_as_close_as_the_crossings():
     _, lines = geometry("sagging", dense=False)
     assert dense.n_planes == lines.n_planes == 2
     assert homography_rms(dense, pc.truth) <= 1.1 * homography_rms(lines, pc.truth)
+
+
+def test_a_bad_lens_option_is_a_clear_error():
+    from rtdefocus.calib.geometry import calibrate_geometry
+
+    pc = sim.VirtualProCam("cubicle", **SMALL)
+    for bad in ((0.1,), ("a", 0.0), (float("nan"), 0.0), (3.0, 0.0)):
+        with pytest.raises(InputError, match=r"lens must be the camera's radial distortion"):
+            calibrate_geometry(pc, lens=bad)
+
+
+@pytest.mark.slow
+def test_a_given_lens_tells_a_pillowed_sheet_from_barrel_distortion():
+    pc = sim.VirtualProCam("webcam_sagging", **SMALL)
+    given = calibrate(Blind(pc), stages=["geometry"], lens=tuple(pc.truth.distortion))
+    guessed = calibrate(Blind(pc), stages=["geometry"])
+    assert given.meta["geometry"]["distortion"]["given"]
+    np.testing.assert_allclose(given.camera_distortion, pc.truth.distortion)
+    assert homography_rms(given, pc.truth) < 0.5 * homography_rms(guessed, pc.truth)

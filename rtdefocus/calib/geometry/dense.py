@@ -19,8 +19,10 @@ normalised the same way. Captures: ``2 (N + bits)`` more, 28 with the defaults a
 (:meth:`DensePatterns.count`).
 
 A pixel is valid where both phases have a modulation of at least :data:`MIN_MODULATION` of the
-white-minus-black contrast and the Gray code and the phase agree on the position within
-``3P/8`` and its 5 × 5 neighbourhood's median within :data:`MAX_MEDIAN_DEVIATION`; elsewhere (a gap, a far wall blurred flat, a shadow, the unlit frame) the map says so.
+white-minus-black contrast, the Gray code and the phase agree on the position within ``3P/8``,
+and the position is within :data:`MAX_MEDIAN_DEVIATION` of its 5 × 5 neighbourhood's median (a
+misread high bit moves it by whole periods); elsewhere (a far wall blurred flat, a shadow, the
+unlit frame) the map says so.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from ..file import Calibration
 from .dense import DenseDecoder, DensePatterns
 from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
-from .lens import fit_with_lens
+from .lens import check_lens_option, fit_with_known_lens, fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
 log = logging.getLogger(__name__)
@@ -70,6 +70,10 @@ class GeometryOptions:
         homography and residual field to every valid camera pixel's projector coordinates
         (:mod:`.dense_fit`); the line crossings still find the planes and folds. The pixels
         no plane fits (a far wall through a gap) are masked out and shown.
+    lens : the camera's radial distortion (k1, k2) when it is known (measured once, e.g. the
+        ``camera_distortion`` of a calibration on flat walls): taken as it is instead of
+        estimated from the walls' crossings, which cannot tell a lens from walls that pillow
+        (:func:`~.lens.fit_with_known_lens`). None: estimated (``undistort``).
     """
 
     line_spacing: int = 48
@@ -83,6 +87,7 @@ class GeometryOptions:
     planes: int | str = "auto"
     residual: bool = True
     dense: bool = False
+    lens: tuple[float, float] | None = None
 
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
@@ -102,7 +107,8 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                        min_kink_deg: float = _D.min_kink_deg, fold_band: float | None = _D.fold_band,
                        ransac_threshold: float = _D.ransac_threshold,
                        undistort: bool = _D.undistort, planes: int | str = _D.planes,
-                       residual: bool = _D.residual, dense: bool = _D.dense) -> Calibration:
+                       residual: bool = _D.residual, dense: bool = _D.dense,
+                       lens: tuple[float, float] | None = _D.lens) -> Calibration:
     """Learn the set-up's geometry through ``capture`` only.
 
     Parameters
@@ -111,7 +117,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     capture : the calibration's :class:`Capturer` (counts, retries, progress); a fresh one
         when None.
     line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold,
-    undistort, planes, residual, dense : see :class:`GeometryOptions` (their defaults are its
+    undistort, planes, residual, dense, lens : see :class:`GeometryOptions` (their defaults are its
     defaults).
 
     Returns
@@ -137,6 +143,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
     if int(samples) < 1:
         raise InputError(f"samples must be >= 1; got {samples}")
     check_planes_option(planes)          # before any capture
+    known = check_lens_option(lens)
     pats = LinePatterns(tuple(procam.projector_size), int(line_spacing), int(line_phases),
                         int(line_width))
     seq = pats.sequence()
@@ -175,13 +182,19 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
                    "fold_band": band, "ransac_threshold": threshold, "planes": planes,
-                   "residual": bool(residual), "dense": bool(dense)}
+                   "residual": bool(residual), "dense": bool(dense),
+                   "lens": None if known is None else list(known)}
         return _calibration(parts, stats, detail, pats, options, t_start, n_captures)
+
+    def fit_lens(fit_one, detection, camera_size, correct, rough=None):
+        if known is not None:
+            return fit_with_known_lens(fit_one, detection, known, camera_size)
+        return fit_with_lens(fit_one, detection, camera_size, correct=correct, rough=rough)
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
     try:
-        return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
-                             rough=lambda d: fit(d, 4.0 * ransac_threshold))
+        return fit_lens(fit, detection, camera_size, bool(undistort),
+                        rough=lambda d: fit(d, 4.0 * ransac_threshold))
     except CalibrationError as exc:
         if not residual:
             raise
@@ -191,10 +204,9 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         log.info("geometry: the flat-plane fit refused the set-up (%s); fitting nearly flat "
                  "planes (inliers within %.1f px, residual fields)", exc, loose)
         try:
-            calib = fit_with_lens(
+            calib = fit_lens(
                 lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT,
-                              NEARLY_FLAT_INLIERS), detection, camera_size,
-                correct=bool(undistort))
+                              NEARLY_FLAT_INLIERS), detection, camera_size, bool(undistort))
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
