@@ -181,12 +181,14 @@ def test_dense_fit_of_a_sagging_wall_is_at_least_as_close_as_the_crossings():
 
 
 def test_a_bad_lens_option_is_a_clear_error():
+    from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.geometry import calibrate_geometry
 
-    pc = sim.VirtualProCam("cubicle", **SMALL)
+    cap = Capturer(sim.VirtualProCam("cubicle", **SMALL))
     for bad in ((0.1,), ("a", 0.0), (float("nan"), 0.0), (3.0, 0.0)):
         with pytest.raises(InputError, match=r"lens must be the camera's radial distortion"):
-            calibrate_geometry(pc, lens=bad)
+            calibrate_geometry(None, cap, lens=bad)
+    assert cap.counts.get("geometry", 0) == 0           # refused before any capture
 
 
 @pytest.mark.slow
