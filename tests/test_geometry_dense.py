@@ -146,6 +146,7 @@ def geometry(preset: str, dense: bool):
     return _RUNS[preset, dense]
 
 
+@pytest.mark.slow
 def test_the_far_wall_through_a_gap_is_masked_drawn_and_left_out():
     pc, calib = geometry("gap", dense=True)
     assert calib.n_planes == 2
