@@ -162,6 +162,10 @@ def test_the_far_wall_through_a_gap_is_masked_drawn_and_left_out():
     assert g["unfit"]["pixels"] == int(mask.sum())
     # the walls themselves still fit: the far wall did not bend the right one
     assert homography_rms(calib, pc.truth) < 0.15
+    # content goes only where a wall is lit: the display rectangle leaves out the projector
+    # columns whose light goes through the gap
+    x, y, w, h = calib.display_rect((4, 3))
+    assert walls[y:y + h, x:x + w].mean() > 0.99, walls[y:y + h, x:x + w].mean()
     # the picture marks that region, and only it (its outline, label and the caption aside)
     detail = calib.geometry_detail
     img = geometry_diagnostics(calib, detail)

@@ -7,7 +7,8 @@ them in each plane's homography (RANSAC and LM, as for the crossings) and residu
 a bowed wall is measured everywhere, not only where two lines cross. After the fit, every
 valid camera pixel whose projector coordinate the model (homography plus residual of the plane
 it falls on) puts more than :data:`UNFIT_PX` away is *unfit*: masked out of the fit, drawn in
-the geometry picture and counted in ``meta["geometry"]["unfit"]``.
+the geometry picture and counted in ``meta["geometry"]["unfit"]``; the projector pixels whose
+light lands there are cut out of the lit outline (and so out of the display rectangle).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from .dense import DenseMap
 from .homography import fit_homography
 
 __all__ = ["SAMPLE_STEP", "UNFIT_PX", "plane_samples", "fit_plane_homography", "prefilter",
-           "unfit_region"]
+           "unfit_region", "outline_without"]
 
 #: Camera px between the dense samples the fit uses (each plane keeps tens of thousands).
 SAMPLE_STEP = 4
@@ -123,3 +124,51 @@ def unfit_region(dense: DenseMap, Hs: np.ndarray, layout_proj: PlaneLayout,
         bbox = [int(xx.min()), int(yy.min()), int(xx.max()), int(yy.max())]
     return mask, {"fraction": round(pix / n_valid, 4), "pixels": pix, "bbox_cam": bbox,
                   "limit_px": limit}
+
+
+def outline_without(polygon_cam: np.ndarray, unfit_mask: np.ndarray, dense: DenseMap,
+                    Hs: np.ndarray, layout_proj: PlaneLayout, residual_cam: np.ndarray | None,
+                    projector_size: tuple[int, int]) -> np.ndarray:
+    """The lit outline (m, 2) camera px less where the model puts the projector pixels whose
+    light lands on the unfit region.
+
+    The planes' maps carry the projector pixels that light a far wall through a gap on as the
+    wall's continuation, into camera pixels that stay dark: content placed there would land on
+    the far wall. Those projector pixels are read off the dense map (the unfit pixels'
+    coordinates), mapped through the model, and cut out of the outline; the largest piece left
+    is the outline (``polygon_cam`` itself when nothing is cut)."""
+    wp, hp = projector_size
+    hc, wc = unfit_mask.shape
+    sel = unfit_mask & dense.valid
+    if not sel.any():
+        return polygon_cam
+    pts = np.rint(dense.proj_xy[sel]).astype(np.int64)
+    ok = (pts[:, 0] >= 0) & (pts[:, 0] < wp) & (pts[:, 1] >= 0) & (pts[:, 1] < hp)
+    gone = np.zeros((hp, wp), np.uint8)
+    gone[pts[ok, 1], pts[ok, 0]] = 1
+    gone = cv2.morphologyEx(gone, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
+    ys, xs = np.nonzero(gone)
+    px, py = xs.astype(np.float64), ys.astype(np.float64)
+    plane = layout_proj.label(px, py).astype(np.intp)
+    mx, my = apply_h_per_plane(Hs, plane, px, py)
+    if residual_cam is not None:
+        for p in range(len(Hs)):
+            on = plane == p
+            d = displacement(residual_cam[p], px[on], py[on], projector_size)
+            mx[on] += d[:, 0]
+            my[on] += d[:, 1]
+    cut = np.zeros((hc, wc), np.uint8)
+    ix, iy = np.rint(mx).astype(np.int64), np.rint(my).astype(np.int64)
+    inside = (ix >= 0) & (ix < wc) & (iy >= 0) & (iy < hc)
+    cut[iy[inside], ix[inside]] = 1
+    # Several camera px per projector px: close the holes, then a little margin.
+    cut = cv2.dilate(cv2.morphologyEx(cut, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)),
+                     np.ones((3, 3), np.uint8))
+    lit = np.zeros((hc, wc), np.uint8)
+    cv2.fillPoly(lit, [np.round(polygon_cam * 16).astype(np.int32)], 1, shift=4)
+    lit &= 1 - cut
+    contours, _ = cv2.findContours(lit, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return polygon_cam
+    big = cv2.approxPolyDP(max(contours, key=cv2.contourArea), 1.0, True).reshape(-1, 2)
+    return big.astype(np.float64) if len(big) >= 3 else polygon_cam

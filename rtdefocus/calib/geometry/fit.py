@@ -45,7 +45,13 @@ from ...planar import (
     tls_line,
 )
 from ...residual import displacement, fit_residual, proj_from_cam
-from .dense_fit import fit_plane_homography, plane_samples, prefilter, unfit_region
+from .dense_fit import (
+    fit_plane_homography,
+    outline_without,
+    plane_samples,
+    prefilter,
+    unfit_region,
+)
 from .fold import Kink, find_kinks, fit_fold, fold_to_projector
 from .homography import fit_homography, line_crossings
 from .planes import (
@@ -71,6 +77,9 @@ MAX_FOLD_DISAGREEMENT = 3.0
 MAX_RESIDUAL_PX = 20.0
 #: A residual field within this (camera px) everywhere is the crossings' noise: none is kept.
 MIN_RESIDUAL_PX = 0.5
+#: Share of the valid dense map that must fit no plane before the lit outline is cut: less is
+#: blur at the folds and edges, not a surface.
+MIN_UNFIT = 0.01
 
 
 @dataclass
@@ -293,6 +302,10 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
             dense, Hs, layout_proj, parts.get("residual_cam"), projector_size)
         stats["dense"] = {"valid_fraction": round(float(dense.valid.sum()) /
                                                   max(int(dense.lit.sum()), 1), 4)}
+        if stats["unfit"]["fraction"] > MIN_UNFIT:
+            parts["lit_polygon_cam"] = outline_without(
+                parts["lit_polygon_cam"], detail.unfit_mask, dense, Hs, layout_proj,
+                parts.get("residual_cam"), projector_size)
         if stats["unfit"]["pixels"]:
             log.info("geometry: %.1f %% of the lit camera view fits no plane (camera box %s); "
                      "it is masked out of the fit", 100 * stats["unfit"]["fraction"],
