@@ -66,11 +66,15 @@ def main() -> None:
     ap.add_argument("--gamma", type=float, default=2.2, help="projector gamma (default 2.2)")
     ap.add_argument("--photos", type=int, default=2,
                     help="photographs the compensation gain is averaged over (0: no gain)")
+    ap.add_argument("--dense", choices=("on", "off"), default=None,
+                    help="dense structured light on or off (default: the geometry stage's)")
     ap.add_argument("--flat", action="store_true",
                     help="calibrate exact planes (no residual field), to see what it gains")
     args = ap.parse_args()
     print(HEADER)
-    kw = {"residual": False} if args.flat else None
+    kw = {"residual": False} if args.flat else {}
+    if args.dense is not None:
+        kw["dense"] = args.dense == "on"
     for p in args.presets:
         print(measure(p, args.size, args.photos, kw, projector_gamma=args.gamma), flush=True)
 

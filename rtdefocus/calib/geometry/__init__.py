@@ -8,7 +8,11 @@ Modules, one step each (DESIGN.md §4):
 * :mod:`.homography` — line crossings -> one homography per plane;
 * :mod:`.planes` — how many planes, which crossing is on which, where they meet;
 * :mod:`.fit` — detected lines -> planes, homographies, folds (:func:`~.fit.fit_geometry`);
-* :mod:`.lens` — the camera lens's radial distortion, fitted with the geometry;
+* :mod:`.lens` — the camera lens's radial distortion, fitted with the geometry (or given);
+* :mod:`.dense` — dense structured light (option ``dense``): every camera pixel's projector
+  coordinates, Gray code plus phase shift;
+* :mod:`.dense_fit` — the planes' homographies and residual fields from the dense map, and the
+  region no plane fits;
 * :mod:`.diagnostics` — the picture of the stage's result over the camera view.
 
 The plane geometry itself (homographies per plane, folds, bounding boxes, labels) is

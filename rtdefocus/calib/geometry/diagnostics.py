@@ -17,6 +17,7 @@ __all__ = ["geometry_diagnostics"]
 _PLANE_TINT = np.array([[60, 120, 255], [255, 150, 40], [200, 60, 220], [40, 200, 120],
                         [230, 60, 60], [140, 100, 60], [120, 120, 255], [255, 120, 180]],
                        np.float32)     # one per plane up to MAX_PLANES
+_UNFIT_TINT = np.array([255, 40, 40], np.float32)     # the region no plane fits
 
 
 def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = None,
@@ -37,8 +38,9 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
     (Hc, Wc, 3) uint8 RGB: the camera view (dimmed), each plane tinted (blue = plane 0,
     orange = plane 1, purple = plane 2, ...), detected lines (green: vertical, cyan:
     horizontal), kinks (red: on the fold, hollow grey: rejected), every fold (yellow, where it
-    separates its two planes), the display rectangles (magenta 4:3, white 16:9, ...) and a
-    caption.
+    separates its two planes), the region no plane fits (red, hatched, outlined and named
+    "no plane fits: masked"; with the dense map), the display rectangles (magenta 4:3,
+    white 16:9, ...) and a caption.
     """
     detail = detail if detail is not None else calib.geometry_detail
     wc, hc = calib.camera_size
@@ -54,8 +56,24 @@ def geometry_diagnostics(calib: Calibration, detail: GeometryDetail | None = Non
         cv2.fillPoly(mask, [np.round(pc * 16).astype(np.int32)], 1, cv2.LINE_AA, shift=4)
         m = mask.astype(bool)
         img[m] = 0.7 * img[m] + 0.3 * _PLANE_TINT[k % len(_PLANE_TINT)]
+    unfit = getattr(detail, "unfit_mask", None) if detail is not None else None
+    if unfit is not None and unfit.any():
+        # Fits no plane (a far wall through a gap, an object): red, hatched, and named.
+        yy, xx = np.mgrid[0:hc, 0:wc]
+        hatch = unfit & (((xx + yy) // 6) % 2 == 0)
+        img[unfit] = 0.5 * img[unfit] + 0.5 * _UNFIT_TINT
+        img[hatch] = 0.6 * img[hatch] + 0.4 * _UNFIT_TINT
     img = np.clip(img, 0, 255).astype(np.uint8)
     sh = 4
+    if unfit is not None and unfit.any():
+        contours, _ = cv2.findContours(unfit.astype(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(img, contours, -1, tuple(int(v) for v in _UNFIT_TINT), 2, cv2.LINE_AA)
+        big = max(contours, key=cv2.contourArea)
+        x, y, w, h = cv2.boundingRect(big)
+        for col, thick in (((0, 0, 0), 3), ((255, 255, 255), 1)):
+            cv2.putText(img, "no plane fits: masked", (int(np.clip(x + 4, 4, wc - 190)), y + h // 2),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, thick, cv2.LINE_AA)
 
     def P(pts):
         return np.round(np.asarray(pts) * (1 << sh)).astype(np.int32)
@@ -109,4 +127,7 @@ def caption(calib: Calibration) -> str:
         cap += f"  bow off the planes {bows} px"
         if "nearly_flat" in g:
             cap += " (nearly flat fit)"
+    unfit = g.get("unfit") or {}
+    if unfit.get("pixels"):
+        cap += f"  masked (no plane fits) {100 * unfit['fraction']:.0f} % of the view"
     return cap

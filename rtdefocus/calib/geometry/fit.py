@@ -45,6 +45,13 @@ from ...planar import (
     tls_line,
 )
 from ...residual import displacement, fit_residual, proj_from_cam
+from .dense_fit import (
+    fit_plane_homography,
+    outline_without,
+    plane_samples,
+    prefilter,
+    unfit_region,
+)
 from .fold import Kink, find_kinks, fit_fold, fold_to_projector
 from .homography import fit_homography, line_crossings
 from .planes import (
@@ -70,6 +77,9 @@ MAX_FOLD_DISAGREEMENT = 3.0
 MAX_RESIDUAL_PX = 20.0
 #: A residual field within this (camera px) everywhere is the crossings' noise: none is kept.
 MIN_RESIDUAL_PX = 0.5
+#: Share of the valid dense map that must fit no plane before the lit outline is cut: less is
+#: blur at the folds and edges, not a surface.
+MIN_UNFIT = 0.01
 
 
 @dataclass
@@ -88,6 +98,8 @@ class GeometryDetail:
     fold_segments_cam : per fold, (2, 2) ends of its visible part in the camera (or None).
     candidates : per RANSAC candidate, its evidence (dict) and ``H_cam_from_proj``.
     residual_inliers : (n,) bool the crossings the residual fields fit (None without them).
+    unfit_mask : (Hc, Wc) bool camera pixels of the dense map that fit no plane (None without
+        a dense map; :func:`~.dense_fit.unfit_region`).
     """
 
     detection: LineDetection
@@ -104,6 +116,7 @@ class GeometryDetail:
     fold_segments_cam: list = field(default_factory=list)
     candidates: list = field(default_factory=list)
     residual_inliers: np.ndarray | None = None
+    unfit_mask: np.ndarray | None = None
 
 
 def check_planes_option(planes) -> int | None:
@@ -190,8 +203,12 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
     _check_count(want, kept, evidence)
     n = len(kept)
 
+    dense = detection.dense
     if n == 1:
-        H, inl, rms = fit_homography(proj, cam, threshold=ransac_threshold, what="the plane")
+        dset = plane_samples(dense, None, 1, band)[0] if dense is not None else None
+        H, inl, rms = (fit_homography(proj, cam, threshold=ransac_threshold, what="the plane")
+                       if dset is None else
+                       fit_plane_homography(dset, proj, cam, ransac_threshold, "the plane"))
         check_fit(inl, rms, "the plane", ransac_threshold)
         Hs = H[None]
         folds_proj = folds_cam = np.zeros((0, 3))
@@ -203,7 +220,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
         detail.fold_inliers = np.zeros(len(kinks), bool)
         detail.kink_fold = np.full(len(kinks), -1)
         layout_proj = PlaneLayout(1)
-        ctrl = [plane_residual(H, proj, cam, projector_size, res_thr)] if residual else None
+        ctrl = [dense_residual(H, proj, cam, dset, projector_size, res_thr)] if residual else None
     else:
         raw = label_crossings([cands[i][0] for i in kept], proj, cam, ransac_threshold)
         coarse, _ = clean_labels(grid, raw, n)
@@ -211,7 +228,7 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
          kink_fold, segs, ctrl) = _fit_planes(n, coarse, grid, proj, cam, kinks, detection.valid,
                                               band, ransac_threshold,
                                               projector_size if residual else None,
-                                              max_fold_disagreement, res_thr)
+                                              max_fold_disagreement, res_thr, dense)
         # ---- numbering (docs/internals.md)
         layout_proj = PlaneLayout(n, folds_proj, fold_planes)
         order = _plane_order(layout_proj, projector_size)
@@ -280,6 +297,19 @@ def fit_geometry(detection: LineDetection, projector_size: tuple[int, int],
                  fold_kinks=int(sum(f["kinks"] for f in fold_stats)))
     if n == 2:
         stats["fold_kink_rms_px"] = fold_stats[0]["kink_rms_px"]
+    if dense is not None:
+        detail.unfit_mask, stats["unfit"] = unfit_region(
+            dense, Hs, layout_proj, parts.get("residual_cam"), projector_size)
+        stats["dense"] = {"valid_fraction": round(float(dense.valid.sum()) /
+                                                  max(int(dense.lit.sum()), 1), 4)}
+        if stats["unfit"]["fraction"] > MIN_UNFIT:
+            parts["lit_polygon_cam"] = outline_without(
+                parts["lit_polygon_cam"], detail.unfit_mask, dense, Hs, layout_proj,
+                parts.get("residual_cam"), projector_size)
+        if stats["unfit"]["pixels"]:
+            log.info("geometry: %.1f %% of the lit camera view fits no plane (camera box %s); "
+                     "it is masked out of the fit", 100 * stats["unfit"]["fraction"],
+                     stats["unfit"]["bbox_cam"])
     return parts, stats, detail
 
 
@@ -304,7 +334,7 @@ def _check_count(want: int | None, kept: list[int], evidence) -> None:
 
 
 def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
-                   projector_size: tuple[int, int], threshold: float):
+                   projector_size: tuple[int, int], threshold: float, min_gain: float = 2.0):
     """One plane's residual field from its crossings (step 6): (ctrl (gy, gx, 2), inliers (N,)
     bool, RMS camera px of the inliers after the field, largest |field| over the frame (px),
     RMS of the same crossings off the homography alone).
@@ -312,8 +342,8 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     What the homography leaves is fitted by :func:`rtdefocus.residual.fit_residual`; crossings
     more than ``threshold`` off homography plus field are left out and the field refitted
     (twice), so a stray crossing does not bend the wall. A field that does not halve the
-    homography's misfit, or stays within :data:`MIN_RESIDUAL_PX`, is noise: the plane is kept
-    exactly flat (zero field)."""
+    homography's misfit (``min_gain``), or stays within :data:`MIN_RESIDUAL_PX`, is noise: the
+    plane is kept exactly flat (zero field)."""
     r = cam - apply_h(H, proj)
     norm = np.linalg.norm(r, axis=1)
     keep = norm <= max(4.0 * threshold, 2.0 * float(np.percentile(norm, 90)) if len(norm) else 0)
@@ -327,17 +357,43 @@ def plane_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray,
     gx, gy = np.meshgrid(np.linspace(0, wp - 1, 33), np.linspace(0, hp - 1, 25))
     biggest = float(np.linalg.norm(displacement(ctrl, gx.ravel(), gy.ravel(), projector_size),
                                    axis=1).max())
-    if not (rms_flat > 2.0 * rms and biggest > MIN_RESIDUAL_PX):
+    if not (rms_flat > min_gain * rms and biggest > MIN_RESIDUAL_PX):
         ctrl, biggest = np.zeros_like(ctrl), 0.0
         keep = norm <= threshold
         rms = rms_flat = float(np.sqrt(np.mean(norm[keep] ** 2))) if keep.any() else float("inf")
     return ctrl, keep, rms, biggest, rms_flat
 
 
+def dense_residual(H: np.ndarray, proj: np.ndarray, cam: np.ndarray, dense_set,
+                   projector_size: tuple[int, int], threshold: float):
+    """:func:`plane_residual` fitted to the plane's dense samples (``dense_set`` = (proj, cam),
+    or None: its crossings), its inliers given over the crossings (``proj``, ``cam``), which
+    the consistency check and the diagnostics read."""
+    if dense_set is None or len(dense_set[0]) < 200:
+        return plane_residual(H, proj, cam, projector_size, threshold)
+    dp, dc = dense_set
+    ok = prefilter(H, dp, dc, proj, cam, threshold)
+    ctrl, _, rms, biggest, rms_flat = plane_residual(H, dp[ok], dc[ok], projector_size, threshold,
+                                                     min_gain=1.0)
+    # Whether the field is worth keeping is the crossings' call (as without the dense map):
+    # they are precise to a few hundredths of a pixel, a dense sample only to a tenth or so.
+    flat = np.linalg.norm(cam - apply_h(H, proj), axis=1)
+    err = np.linalg.norm(cam - apply_h(H, proj) - displacement(ctrl, proj[:, 0], proj[:, 1],
+                                                                projector_size), axis=1)
+    keep = err <= threshold
+    if keep.any() and not float(np.sqrt(np.mean(flat[keep] ** 2))) > \
+            2.0 * float(np.sqrt(np.mean(err[keep] ** 2))):
+        ctrl, biggest = np.zeros_like(ctrl), 0.0
+        keep = flat <= threshold
+        rms = rms_flat
+    return ctrl, keep, rms, biggest, rms_flat
+
+
 def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, residual_size=None,
-                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None):
+                max_disagreement=MAX_FOLD_DISAGREEMENT, residual_threshold=None, dense=None):
     """Steps 3-6 for n >= 2 planes, in the model selection's numbering; ``residual_size``
-    (the projector size) fits the residual fields (else None is returned for them)."""
+    (the projector size) fits the residual fields (else None is returned for them); with a
+    ``dense`` map each plane's homography and field are fitted to its dense samples."""
     kpts = np.array([kk.point_cam_xy for kk in kinks]).reshape(-1, 2)
     kink_fold = np.full(len(kinks), -1)
     folds_cam, pairs, fold_stats = [], [], []
@@ -374,11 +430,14 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
     lab = layout_cam.label(cam[:, 0], cam[:, 1]).astype(np.int64)
     out = layout_cam.outside(cam[:, 0], cam[:, 1])
     plane = np.where(out[lab, np.arange(len(cam))] < -band, lab, -1).astype(np.int8)
+    dsets = plane_samples(dense, layout_cam, n, band) if dense is not None else [None] * n
     fits = []
     for p in range(n):
         sel = plane == p
         what = f"plane {p + 1} of {n}"
-        H, inl, rms = fit_homography(proj[sel], cam[sel], threshold=threshold, what=what)
+        H, inl, rms = (fit_homography(proj[sel], cam[sel], threshold=threshold, what=what)
+                       if dsets[p] is None else
+                       fit_plane_homography(dsets[p], proj[sel], cam[sel], threshold, what))
         check_fit(inl, rms, what, threshold)
         fits.append((H, inl, rms))
     Hs = np.stack([f[0] for f in fits])
@@ -386,8 +445,8 @@ def _fit_planes(n, coarse, grid, proj, cam, kinks, valid, band, threshold, resid
     ctrl = None
     if residual_size is not None:
         rt = threshold if residual_threshold is None else residual_threshold
-        ctrl = [plane_residual(Hs[p], proj[plane == p], cam[plane == p], residual_size, rt)
-                for p in range(n)]
+        ctrl = [dense_residual(Hs[p], proj[plane == p], cam[plane == p], dsets[p], residual_size,
+                               rt) for p in range(n)]
     folds_proj, segs = [], []
     for j, (a, b) in enumerate(pairs):
         seg = _visible_fold(layout_cam, j, valid)

@@ -28,6 +28,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from ...errors import InputError
 from ...planar import distort_points, undistort_points
 from .structured_light import DetectedLine, LineDetection
 
@@ -35,7 +36,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["lens_k", "ideal_points", "observed_points", "observed_maps", "undistort_image",
            "ideal_view", "lit_mask_observed", "undistort_line", "undistort_detection",
-           "fit_with_lens", "max_displacement", "MIN_EFFECT_PX", "MIN_EXPLAINED"]
+           "fit_with_lens", "fit_with_known_lens", "check_lens_option", "max_displacement",
+           "MIN_EFFECT_PX", "MIN_EXPLAINED"]
 
 #: Largest displacement (camera px, at the frame corners) of a distortion that is not worth
 #: correcting: below it the estimate is within its own noise and a refit only costs time.
@@ -157,7 +159,8 @@ def undistort_line(ln: DetectedLine, k: tuple[float, float],
 def undistort_detection(det: LineDetection, k: tuple[float, float],
                         camera_size: tuple[int, int]) -> LineDetection:
     """The whole line detection in ideal camera pixels: every ridge (:func:`undistort_line`),
-    the frames and the valid mask resampled (so the diagnostics draw on a matching picture)."""
+    the frames, the valid mask and the dense map resampled (so the diagnostics draw on a
+    matching picture)."""
     lines = [undistort_line(ln, k, camera_size) for ln in det.lines]
     return replace(
         det, lines=[ln for ln in lines if len(ln.t) > 0],
@@ -165,7 +168,8 @@ def undistort_detection(det: LineDetection, k: tuple[float, float],
         black=undistort_image(det.black, k, camera_size),
         valid=undistort_image(det.valid, k, camera_size, cv2.INTER_NEAREST),
         white_rgb=undistort_image(det.white_rgb, k, camera_size),
-        stats=dict(det.stats))
+        stats=dict(det.stats),
+        dense=None if det.dense is None else det.dense.resampled(*observed_maps(k, camera_size)))
 
 
 def max_displacement(k, camera_size: tuple[int, int]) -> float:
@@ -280,4 +284,42 @@ def fit_with_lens(fit: Callable[[LineDetection], object], detection: LineDetecti
             raise first_error
         calib.camera_distortion = np.zeros(2, np.float64)
     calib.meta["geometry"]["distortion"] = info
+    return calib
+
+
+def check_lens_option(lens) -> tuple[float, float] | None:
+    """The geometry stage's ``lens`` option as (k1, k2) floats (None stays None); InputError
+    naming the problem otherwise."""
+    if lens is None:
+        return None
+    try:
+        k = tuple(float(v) for v in np.asarray(lens, np.float64).ravel())
+    except (TypeError, ValueError):
+        k = ()
+    if len(k) != 2 or not all(np.isfinite(k)) or max(abs(v) for v in k) > 1.0:
+        raise InputError(f"lens must be the camera's radial distortion (k1, k2), two finite "
+                         f"numbers within -1..1 (a calibration's camera_distortion); got {lens!r}")
+    return k
+
+
+def fit_with_known_lens(fit: Callable[[LineDetection], object], detection: LineDetection,
+                        k: tuple[float, float], camera_size: tuple[int, int]):
+    """Run the geometry fit with a known lens ``k`` = (k1, k2) taken out, instead of the one
+    :func:`fit_with_lens` estimates from the walls.
+
+    The walls' own crossings cannot tell a lens from walls that pillow: a sheet bulging
+    towards the room bends the lines much as barrel distortion does. A lens measured once
+    (on flat walls, or by any camera calibration) removes that doubt.
+    ``meta["geometry"]["distortion"]`` holds ``k1``, ``k2``, ``given`` (True), ``applied``, the
+    largest displacement ``corner_px`` and the k1 the fit still sees (``residual_k1``).
+    """
+    applied = lens_k(k) is not None
+    calib = fit(undistort_detection(detection, k, camera_size) if applied else detection)
+    residual = calib.meta["geometry"].get("distortion", {})
+    calib.camera_distortion = np.array(k, np.float64)
+    calib.meta["geometry"]["distortion"] = {
+        "k1": round(k[0], 5), "k2": round(k[1], 5), "given": True, "applied": applied,
+        "corner_px": round(max_displacement(k, camera_size), 3),
+        "residual_k1": residual.get("k1"), "rms_px": residual.get("rms_px_without")}
+    log.info("geometry: the given lens k1 = %.4f, k2 = %.4f taken out", k[0], k[1])
     return calib

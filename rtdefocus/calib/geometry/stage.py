@@ -21,15 +21,16 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from ...errors import CalibrationError, InputError
 from ..capture import Capturer, check_capturer
 from ..file import Calibration
 from ..options import stage_options
+from .dense import DenseDecoder, DensePatterns
 from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
-from .lens import fit_with_lens
+from .lens import check_lens_option, fit_with_known_lens, fit_with_lens
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
 log = logging.getLogger(__name__)
@@ -64,6 +65,15 @@ class GeometryOptions:
         (:data:`NEARLY_FLAT_FACTOR` × ``ransac_threshold``, and as many times the fold
         disagreement) and the residual. False: exact
         planes (the paper's model).
+    dense : also project the dense patterns (:mod:`.dense`: Gray code plus phase shift in both
+        directions, :meth:`~.dense.DensePatterns.count` more captures) and fit each plane's
+        homography and residual field to every valid camera pixel's projector coordinates
+        (:mod:`.dense_fit`); the line crossings still find the planes and folds. The pixels
+        no plane fits (a far wall through a gap) are masked out and shown.
+    lens : the camera's radial distortion (k1, k2) when it is known (measured once, e.g. the
+        ``camera_distortion`` of a calibration on flat walls): taken as it is instead of
+        estimated from the walls' crossings, which cannot tell a lens from walls that pillow
+        (:func:`~.lens.fit_with_known_lens`). None: estimated (``undistort``).
     """
 
     line_spacing: int = 48
@@ -76,6 +86,8 @@ class GeometryOptions:
     undistort: bool = True
     planes: int | str = "auto"
     residual: bool = True
+    dense: bool = False
+    lens: tuple[float, float] | None = None
 
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
@@ -136,15 +148,30 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
     if int(samples) < 1:
         raise InputError(f"samples must be >= 1; got {samples}")
     check_planes_option(planes)          # before any capture
+    known = check_lens_option(o.lens)
+    dense = bool(o.dense)
     pats = LinePatterns(tuple(procam.projector_size), int(o.line_spacing), int(o.line_phases),
                         int(o.line_width))
     seq = pats.sequence()
+    dense_dec = DenseDecoder(DensePatterns(pats.projector_size)) if dense else None
+    if dense_dec is not None:       # before the closing white frame, which checks stability
+        seq = seq[:-1] + dense_dec.patterns.sequence() + seq[-1:]
     cap.begin("geometry", len(seq) * int(samples))
     det = LineDetector(pats)
     for name, pattern in seq:
         frame = cap(pattern) if samples == 1 else cap.mean(pattern, int(samples))
-        det.add(name, frame)
+        if name.startswith("d"):        # dense patterns (no line pattern's name starts so)
+            if det.white is None:
+                raise InputError("the white frame must be captured before the dense patterns")
+            if not dense_dec.ready:
+                dense_dec.set_frames(det.black, det.white)
+            dense_dec.add(name, frame)
+        else:
+            det.add(name, frame)
     detection = det.result()
+    if dense_dec is not None:
+        detection = replace(detection, dense=dense_dec.result())
+    n_captures = len(seq)
     camera_size = tuple(procam.camera_size)
     band = float(o.fold_band) if o.fold_band is not None else float(det.half)
 
@@ -161,13 +188,19 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
         used = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
                    "fold_band": band, "ransac_threshold": threshold, "planes": planes,
-                   "residual": bool(residual)}
-        return _calibration(parts, stats, detail, pats, used, t_start)
+                   "residual": bool(residual), "dense": dense,
+                   "lens": None if known is None else list(known)}
+        return _calibration(parts, stats, detail, pats, used, t_start, n_captures)
+
+    def fit_lens(fit_one, detection, camera_size, correct, rough=None):
+        if known is not None:
+            return fit_with_known_lens(fit_one, detection, known, camera_size)
+        return fit_with_lens(fit_one, detection, camera_size, correct=correct, rough=rough)
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
     try:
-        return fit_with_lens(fit, detection, camera_size, correct=bool(o.undistort),
-                             rough=lambda d: fit(d, 4.0 * ransac_threshold))
+        return fit_lens(fit, detection, camera_size, bool(o.undistort),
+                        rough=lambda d: fit(d, 4.0 * ransac_threshold))
     except CalibrationError as exc:
         if not residual:
             raise
@@ -177,10 +210,9 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
         log.info("geometry: the flat-plane fit refused the set-up (%s); fitting nearly flat "
                  "planes (inliers within %.1f px, residual fields)", exc, loose)
         try:
-            calib = fit_with_lens(
+            calib = fit_lens(
                 lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT,
-                              NEARLY_FLAT_INLIERS), detection, camera_size,
-                correct=bool(o.undistort))
+                              NEARLY_FLAT_INLIERS), detection, camera_size, bool(o.undistort))
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
@@ -188,11 +220,11 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
 
 
 def _calibration(parts: dict, fit_stats: dict, detail: GeometryDetail, pats: LinePatterns,
-                 options: dict, t_start: float) -> Calibration:
+                 options: dict, t_start: float, n_patterns: int) -> Calibration:
     """The Calibration and its ``meta["geometry"]`` from one :func:`fit_geometry`."""
     detection = detail.detection
     camera_size = tuple(detection.valid.shape[::-1])
-    stats: dict = {"captures": pats.count() * options["samples"], "patterns": pats.count(),
+    stats: dict = {"captures": n_patterns * options["samples"], "patterns": n_patterns,
                    "lines_found": detection.stats["lines_found"],
                    "lines_expected": detection.stats["lines_expected"],
                    "ridge_points": detection.stats["points"],

@@ -296,6 +296,8 @@ class LineDetection:
     valid : (Hc, Wc) bool, pixels lit well enough to measure.
     white_rgb : (Hc, Wc, 3) uint8 camera view of the white frame.
     stats : dict of numbers for the log and ``meta``.
+    dense : the :class:`~.dense.DenseMap` of the dense patterns, in the same camera pixels
+        (None when they were not projected).
     """
 
     lines: list[DetectedLine]
@@ -305,6 +307,7 @@ class LineDetection:
     valid: np.ndarray
     white_rgb: np.ndarray
     stats: dict = field(default_factory=dict)
+    dense: object | None = None
 
     def family(self, axis: str) -> list[DetectedLine]:
         return [ln for ln in self.lines if ln.axis == axis]
