@@ -155,8 +155,9 @@ def mend_projector(calib: Calibration, shifts_proj: np.ndarray) -> Calibration:
 # ---------------------------------------------------------------------------- focus
 def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
     """The calibration with every kernel's radius scaled by ``scale`` (the focus ring turned):
-    each PSF zoomed about its centre, on a support grown to hold it, and renormalised to unit
-    sum. The kernel field (which PSFs blend at each pixel) stays."""
+    each PSF zoomed about its centre (cubic), on a support grown to hold it, and renormalised
+    to unit sum. The kernel field (which PSFs blend at each pixel) stays. Kernels of a pixel or
+    two are only roughly zoomed: the pixel grid, which does not scale, dominates their shape."""
     if not calib.has_psf:
         raise InputError("rescale_kernels needs the calibration's kernels (its PSF section)")
     scale = float(scale)
@@ -166,22 +167,19 @@ def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
     n, k, _ = psfs.shape
     k_new = max(k, int(2 * np.ceil(0.5 * (k - 1) * scale) + 1))
     c_old, c_new = 0.5 * (k - 1), 0.5 * (k_new - 1)
-    # Sample the zoomed kernel by area: each new tap integrates the old kernel over its
-    # footprint (a plain resample of a sharp disc edge would alias).
-    sub = 4
-    fine = k_new * sub
-    # Fine sample u (new kernel coordinates (u + 0.5) / sub − 0.5) reads the old kernel at
-    # c_old + (that − c_new) / scale.
-    off = c_old + (0.5 / sub - 0.5 - c_new) / scale
-    M = np.float32([[1.0 / (scale * sub), 0.0, off], [0.0, 1.0 / (scale * sub), off]])
+    # Point samples of the zoomed kernel, cubic (the identity at scale 1; area sampling of an
+    # interpolated kernel would widen kernels of a pixel or two by the interpolation itself).
+    # New tap m reads the old kernel at c_old + (m − c_new) / scale.
+    off = c_old - c_new / scale
+    M = np.float32([[1.0 / scale, 0.0, off], [0.0, 1.0 / scale, off]])
     out = np.empty((n, k_new, k_new), np.float32)
     for i in range(n):
-        up = cv2.warpAffine(psfs[i], M, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        small = up.reshape(k_new, sub, k_new, sub).sum(axis=(1, 3))
-        s = float(small.sum())
+        z = cv2.warpAffine(psfs[i], M, (k_new, k_new), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        z = np.clip(z, 0.0, None)            # cubic overshoot
+        s = float(z.sum())
         if s > 0:
-            out[i] = small / s
+            out[i] = z / s
         else:                      # a kernel too small to sample: a delta
             out[i] = 0.0
             out[i, k_new // 2, k_new // 2] = 1.0
