@@ -307,7 +307,8 @@ def _watch_summary(watcher, calib, args) -> None:
     """What the watcher did; with --save-updates, the mended calibration saved beside the
     original (only when it changed)."""
     done = [e for e in watcher.events if e.action in ("detect", "mend", "give up")]
-    print(f"watch: {watcher.looks} looks, {len(done)} events, {watcher.false_alarms} retracted")
+    print(f"watch: {watcher.looks} looks, {len(done)} events, {watcher.false_alarms} retracted, "
+          f"{watcher.untrusted_frames} frames shown with geometry only until mended")
     for e in done:
         print(f"  {e.t:7.2f} s  {e.kind:8s} {e.action:7s} {e.detail}")
     if args.save_updates and watcher.calib is not calib:

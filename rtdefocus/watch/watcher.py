@@ -98,8 +98,8 @@ class Thresholds:
 
     geometry_px : largest per-plane content shift (projector px), counted on planes whose
         phase-correlation peak is at least ``min_confidence``.
-    gain : |gain − 1| (exposure or albedo change).
-    ambient : |added room light| (mean camera linear light).
+    gain : |gain / its level while trusted − 1| (exposure or albedo change).
+    ambient : |added room light − its level while trusted| (mean camera linear light).
     focus : |band ratio / its value while trusted − 1|.
     """
 
@@ -157,7 +157,8 @@ class Watcher:
     false_alarms : confirmed detections the watcher retracted because the change, once
         estimated, was below the low threshold (nothing applied). An evaluation that knows
         when the set-up changed counts its own: detections with no change since the last one.
-    looks : looks made; reports : the last report.
+    looks : looks made; last_report : the last look's report.
+    untrusted_frames : frames offered while the model was not trusted (shown geometry only).
     """
 
     def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
@@ -182,6 +183,7 @@ class Watcher:
         self.events: list[WatchEvent] = []
         self.false_alarms = 0
         self.looks = 0
+        self.untrusted_frames = 0
         self.last_report: ResidualReport | None = None
         self._trusted = True
         self._active: dict[str, int] = {}     # kinds detected and not yet cleared: mends made
@@ -191,6 +193,7 @@ class Watcher:
         self._suspect: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._measured: dict[str, list] = {k: [] for k in KINDS}
         self._band_base: list[float] = []
+        self._light_base: list[tuple[float, float]] = []
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
 
@@ -206,6 +209,8 @@ class Watcher:
         """The Player showed ``shown`` ((Hp, Wp, 3) uint8, the projector frame) for the input
         ``source``: look now if a look is due. Returns whether a look was started."""
         self._raise_error()
+        if not self.trusted:
+            self.untrusted_frames += 1
         t = float(self.clock())
         if t - self._last_look < self.period_s:
             return False
@@ -293,8 +298,19 @@ class Watcher:
             self._mend(todo, shown, capture, t)
         elif not self._active and not any(over.values()) and math.isfinite(_band(r)):
             self._band_base = (self._band_base + [_band(r)])[-16:]
+            self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
         return r
+
+    def _light_ref(self) -> tuple[float, float]:
+        """The gain and added light the reports read while the model was right (a calibration
+        is rarely exact in its light: the levels are judged against these), or (1, 0) before
+        ``band_looks`` such looks and after a light mend (which makes the model explain the
+        light as it is)."""
+        if len(self._light_base) < self.band_looks:
+            return 1.0, 0.0
+        g, a = np.median(np.array(self._light_base), axis=0)
+        return float(g), float(a)
 
     def _update_trust(self) -> None:
         with self._lock:
@@ -307,8 +323,9 @@ class Watcher:
         th = self.th
         ok = np.isfinite(r.shifts_proj).all(axis=1) & (r.confidence >= th.min_confidence)
         geo = float(np.linalg.norm(r.shifts_proj[ok], axis=1).max()) if ok.any() else 0.0
-        gain = abs(r.gain - 1.0)
-        amb = abs(r.ambient_added)
+        g_ref, a_ref = self._light_ref()
+        gain = abs(r.gain / g_ref - 1.0)
+        amb = abs(r.ambient_added - a_ref)
         base = (float(np.median(self._band_base)) if len(self._band_base) >= self.band_looks
                 else None)
         band = _band(r)
@@ -378,8 +395,10 @@ class Watcher:
             gain = float(np.median([r.gain for r in reports]))
             added = float(np.median([r.ambient_added for r in reports]))
             detail = {"gain": round(gain, 4), "ambient_added": round(added, 5)}
-            if abs(gain - 1) < th.gain[1] and abs(added) < th.ambient[1]:
+            g_ref, a_ref = self._light_ref()
+            if abs(gain / g_ref - 1) < th.gain[1] and abs(added - a_ref) < th.ambient[1]:
                 return None, detail
+            self._light_base = []
             return mend_light(calib, gain, added), detail
         if kind == "geometry":
             shifts = np.nanmedian(np.stack([r.shifts_proj for r in reports]), axis=0)
