@@ -148,6 +148,30 @@ def test_unchanged_set_up_playing_moving_content_with_a_cut_raises_no_alarm(pres
     assert w.trusted and w.untrusted_frames == 0 and w.calib is calib
 
 
+def test_plain_frames_say_nothing_and_raise_no_alarm():
+    """Black, grey and white frames (a fade, a title card) cannot tell gain from added light
+    nor show blur: the watcher neither suspects nor clears anything on them."""
+    pc, calib = setup("webcam_cubicle")
+    plain = [np.full((PROJ[1], PROJ[0], 3), v, np.uint8) for v in (0, 128, 255)]
+    plain.append((content(3) // 6).astype(np.uint8))           # dark, noise-dominated texture
+    w = Watcher(calib, camera_view(pc), period_s=0.0, threaded=False, clock=lambda: 0.0)
+    for i in range(12):
+        w.offer(plain[i % len(plain)])
+    assert w.looks == 12 and w.events == [] and w.trusted
+    # A change seen on content is mended; plain frames do not clear the mend, content does.
+    pc.set_light(ambient=pc.ambient + 0.1)
+    w.offer(content(0))
+    w.offer(content(1))
+    assert [e.action for e in w.events] == ["detect", "mend"] and not w.trusted
+    for f in plain:
+        w.offer(f)
+    assert [e.action for e in w.events] == ["detect", "mend"] and not w.trusted
+    w.offer(content(2))
+    assert [e.action for e in w.events] == ["detect", "mend", "cleared"]
+    assert not w.trusted                 # until the Player has taken the mended calibration
+    assert w.poll().calibration is w.calib and w.trusted
+
+
 def test_threaded_watcher_compares_with_the_frame_shown_not_the_buffer_reused():
     """The Player may reuse its frame buffer after offering it: the look runs on a thread
     while the buffer already holds the next picture. The watcher compares with its own copy

@@ -447,6 +447,8 @@ class Player:
                 if not ok:
                     self._writer.abort()
                 self._writer = None
+            if self.watcher is not None:
+                self.watcher.close()             # a look in progress on its thread
             if thread is not None:
                 thread.join(timeout=10)
                 if thread.is_alive():

@@ -36,10 +36,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
+from ..reference.lut import decode_lut
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
 from .residual import ResidualReport, residual_report
 
@@ -100,7 +102,12 @@ class Thresholds:
         phase-correlation peak is at least ``min_confidence``.
     gain : |gain / its level while trusted − 1| (exposure or albedo change).
     ambient : |added room light − its level while trusted| (mean camera linear light).
-    focus : |band ratio / its value while trusted − 1|.
+    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain).
+    min_confidence, min_contrast, min_band : what a look must offer to say anything of a kind:
+        geometry, a plane's phase-correlation peak; light, the shown frame's standard deviation
+        in linear light (a plain frame cannot tell gain from added light); focus, its band-pass
+        (difference of Gaussians, σ 1 and 2 px) RMS in linear light (below it the camera's
+        noise sets the ratio). A kind a look says nothing of is neither suspected nor cleared.
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
@@ -108,6 +115,8 @@ class Thresholds:
     ambient: tuple[float, float] = (0.015, 0.0075)
     focus: tuple[float, float] = (0.012, 0.006)
     min_confidence: float = 0.05
+    min_contrast: float = 0.03
+    min_band: float = 0.008
 
 
 def _band(r: ResidualReport) -> float:
@@ -269,7 +278,7 @@ class Watcher:
         self.last_report = r
         if self._active.pop("lost", None) is not None:
             self._event(t, "lost", "cleared", {})
-        over, under = self._classify(r)
+        over, under, informative = self._classify(r, self._informative(shown))
         todo = None
         blocked = False          # an earlier kind is changing: later kinds are not judged
         for k in KINDS:
@@ -279,10 +288,12 @@ class Watcher:
                     del self._active[k]
                     self._event(t, k, "cleared", {})
                     continue
+                blocked = True
+                if not informative[k]:
+                    continue                 # this look says nothing of it: wait for one that does
                 # Mended but not right yet: mend what is left.
                 self._measured[k] = [r]
                 todo = todo or k
-                blocked = True
             elif blocked or not over[k]:
                 self._suspect[k], self._measured[k] = 0, []
             else:
@@ -296,9 +307,12 @@ class Watcher:
         if todo is not None:
             self._update_trust()            # geometry only from the next frame on
             self._mend(todo, shown, capture, t)
-        elif not self._active and not any(over.values()) and math.isfinite(_band(r)):
-            self._band_base = (self._band_base + [_band(r)])[-16:]
-            self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
+        elif not self._active and not any(over.values()):
+            # The levels of a model known right, each from looks that can tell it.
+            if informative["focus"] and math.isfinite(_band(r)):
+                self._band_base = (self._band_base + [_band(r)])[-16:]
+            if informative["light"]:
+                self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
         return r
 
@@ -318,10 +332,20 @@ class Watcher:
         if self._trusted and not was:
             log.info("watch: the model is trusted again")
 
-    def _classify(self, r: ResidualReport) -> tuple[dict, dict]:
-        """Per kind: over its high threshold, and under its low one."""
+    def _informative(self, shown: np.ndarray) -> dict:
+        """Per kind, whether the shown frame has the content to judge it (see
+        :class:`Thresholds`)."""
+        lin = decode_lut(np.asarray(shown), self.calib.lut).mean(axis=0)
+        band = cv2.GaussianBlur(lin, (0, 0), 1.0) - cv2.GaussianBlur(lin, (0, 0), 2.0)
+        return {"geometry": True, "light": float(lin.std()) > self.th.min_contrast,
+                "focus": float(np.sqrt(np.mean(band ** 2))) > self.th.min_band}
+
+    def _classify(self, r: ResidualReport, informative: dict) -> tuple[dict, dict, dict]:
+        """Per kind: over its high threshold, under its low one (neither where the look has
+        nothing to say of the kind), and whether it has something to say."""
         th = self.th
         ok = np.isfinite(r.shifts_proj).all(axis=1) & (r.confidence >= th.min_confidence)
+        informative = dict(informative, geometry=informative["geometry"] and bool(ok.any()))
         geo = float(np.linalg.norm(r.shifts_proj[ok], axis=1).max()) if ok.any() else 0.0
         g_ref, a_ref = self._light_ref()
         gain = abs(r.gain / g_ref - 1.0)
@@ -337,7 +361,10 @@ class Watcher:
         under = {"geometry": geo < th.geometry_px[1],
                  "light": gain < th.gain[1] and amb < th.ambient[1],
                  "focus": not psf or focus < th.focus[1]}
-        return over, under
+        for k in KINDS:
+            if not informative[k]:
+                over[k] = under[k] = False
+        return over, under, informative
 
     @staticmethod
     def _describe(kind: str, r: ResidualReport) -> dict:
