@@ -267,6 +267,22 @@ def test_player_applies_the_update_between_two_frames_and_shows_geometry_until_m
     assert kinds.count("warp") == w.untrusted_frames
 
 
+def test_bad_watch_inputs_get_one_line_errors():
+    _, calib = setup()
+    wrong_camera = Watcher(calib, lambda shown: np.zeros((10, 10, 3), np.uint8), period_s=0.0,
+                           threaded=False)
+    with pytest.raises(InputError, match="the look returned"):
+        wrong_camera.offer(content(0))
+    with pytest.raises(InputError, match="period_s"):
+        Watcher(calib, lambda shown: shown, period_s=-1.0)
+
+    class NoSwap:
+        projector_size = PROJ
+
+    with pytest.raises(InputError, match="with_calibration"):
+        Player(NoSwap(), ArraySource([content(0)]), NullSink(), watcher=wrong_camera)
+
+
 def test_rescale_kernels_keeps_unit_sums_and_is_the_identity_at_one():
     _, calib = setup()
     same = rescale_kernels(calib, 1.0)

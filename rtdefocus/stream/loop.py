@@ -187,6 +187,9 @@ class Player:
         self._catch_up = CatchUp(self.budget) if self.budget is not None else None
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
+        if watcher is not None and not hasattr(compensator, "with_calibration"):
+            raise InputError("a watcher needs a compensator with with_calibration(calib) (as "
+                             "rtdefocus.Compensator has) to apply its mended calibrations")
         self.watcher = watcher
 
     def settings(self) -> dict:

@@ -265,6 +265,10 @@ class Watcher:
         the clock: tests and evaluations may call it directly). Returns the report (None when
         the camera no longer sees the frame)."""
         self.looks += 1
+        wc, hc = self.calib.camera_size
+        if np.shape(capture) != (hc, wc, 3):
+            raise InputError(f"the look returned a {np.shape(capture)} frame; the calibration's "
+                             f"camera gives ({hc}, {wc}, 3): check the camera the watcher uses")
         try:
             r = self.report(self.calib, shown, capture)
         except InputError as exc:
