@@ -4,27 +4,34 @@ difference says what changed (DESIGN.md §9, "The watcher").
 
 Each look gives a :class:`~rtdefocus.watch.residual.ResidualReport`. The watcher attributes a
 difference to **geometry**, then **light**, then **focus** (in that order: a bump also changes
-the light fit and the band-pass energy), with hysteresis: a kind is *detected* when
-``confirm`` successive looks exceed its high threshold, and the set-up counts as unchanged
-again only below its low threshold. A look compares the camera frame with the very frame the
-projector showed when it was taken (the Player hands that frame over), so moving content and
-cuts are no change.
+the light fit and the band-pass energy, so a later kind is not judged while an earlier one is
+changing), with hysteresis per kind: a kind is *detected* when ``confirm`` successive looks
+exceed its high threshold, and *cleared* only by a look below its low threshold. Light and
+focus are judged against their levels while the model was right (a calibration is rarely
+exact in them). A look compares the camera frame with the very frame the projector showed
+when it was taken (the Player hands that frame over), so moving content and cuts are no
+change; a look judges only what its frame can show (a plain frame tells nothing of light or
+focus, see :class:`Thresholds`).
 
 On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
 shows geometry only, never worse than no compensation) and a mend is estimated from the
 content, with no pattern on the screen:
 
 * light: albedo and ambient re-scaled by the report's gain and added room light;
-* geometry: a camera move (every plane's content moved by one camera-space shift) is one
-  camera-side correction for all planes; otherwise a projector move, one shift per plane
-  with the folds kept consistent (:mod:`~rtdefocus.watch.mend`);
-* focus: every kernel's radius rescaled by the factor whose prediction best explains the
-  capture (least residual over a golden-section search).
+* geometry: a camera move is one camera-side correction for all planes, a projector move one
+  shift per plane with the folds kept consistent (:mod:`~rtdefocus.watch.mend`); which of the
+  two it was is decided by which mend explains the capture better (the walls move with a
+  camera move, not with a projector move);
+* focus: every kernel's radius rescaled by the factor that brings the band-pass ratio back to
+  its level while the model was right.
 
 The mend becomes a new :class:`~rtdefocus.calib.file.Calibration` (the one in use is never
 modified), handed to the Player by :meth:`Watcher.poll` as a :class:`WatchUpdate` that it
-applies between two frames. The next look checks it: below the low thresholds the model is
-trusted again; otherwise the remaining difference is mended the same way.
+applies between two frames. The next look checks it: below the low threshold the kind is
+cleared; otherwise what is left is mended the same way (at most ``max_mends`` times; then the
+watcher gives up, says so, and frames stay geometry only: the set-up needs a calibration).
+A short burst of calibration patterns for changes the content cannot mend is not part of
+this watcher.
 """
 
 from __future__ import annotations
@@ -153,8 +160,9 @@ class Watcher:
         :meth:`offer` (deterministic).
     thresholds : :class:`Thresholds`.
     confirm : successive looks over a high threshold that make a detection.
-    band_looks : trusted looks that set the band ratio's level before a focus change can be
-        detected (after every mend the level is measured again).
+    band_looks : looks of a trusted, unchanging set-up that set the levels light and focus
+        are judged against (until then light is judged against a gain of 1 and no added
+        light, focus not at all; a light mend starts the light's level again).
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
