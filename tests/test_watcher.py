@@ -348,7 +348,7 @@ def test_play_watch_from_the_cli_leaves_the_file_alone_unless_asked(show_files, 
     assert err < 0.1 * abs(float(stale.ambient_proj.mean() - oracle.ambient_proj.mean()))
 
 
-def test_play_watch_options_are_checked(show_files, capsys):
+def test_play_watch_options_are_checked(show_files, capsys, tmp_path):
     _, setup_path, clip, _ = show_files
     base = ["play", str(setup_path), str(clip), "--out", "null"]
     assert cli.main([*base, "--watch"]) == 1
@@ -357,3 +357,8 @@ def test_play_watch_options_are_checked(show_files, capsys):
     assert "go with --watch" in capsys.readouterr().err
     assert cli.main([*base, "--watch", "--sim", "cubicle", "--sim-event", "soon"]) == 1
     assert "--sim-event must be" in capsys.readouterr().err
+    slide = tmp_path / "one.png"
+    cv2.imwrite(str(slide), content(0))
+    assert cli.main(["play", str(setup_path), str(slide), "--out", "null", "--watch", "--sim",
+                     "cubicle"]) == 1
+    assert "slideshow is played without it" in capsys.readouterr().err

@@ -190,6 +190,9 @@ class Player:
         if watcher is not None and not hasattr(compensator, "with_calibration"):
             raise InputError("a watcher needs a compensator with with_calibration(calib) (as "
                              "rtdefocus.Compensator has) to apply its mended calibrations")
+        if watcher is not None and source.still and isinstance(source, SlidesSource):
+            raise InputError("the watcher watches video and live sources; a slideshow is "
+                             "played without it (leave out --watch / watcher=)")
         self.watcher = watcher
 
     def settings(self) -> dict:
