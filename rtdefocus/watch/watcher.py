@@ -442,11 +442,17 @@ class Watcher:
             self._light_base = []
             return mend_light(calib, gain, added), detail
         if kind == "geometry":
-            shifts = np.nanmedian(np.stack([r.shifts_proj for r in reports]), axis=0)
-            shifts = np.where(np.isfinite(shifts), shifts, np.nanmean(shifts, axis=0))
-            detail = {"shifts_proj": np.round(shifts, 3).tolist()}
-            if not np.all(np.isfinite(shifts)):
+            # Planes whose correlation peak is too low say nothing, as in _classify; a plane
+            # no look could measure takes the mean of the others.
+            seen = np.stack([np.where((r.confidence >= th.min_confidence)[:, None],
+                                      r.shifts_proj, np.nan) for r in reports])
+            ok = np.isfinite(seen).all(axis=2).any(axis=0)
+            if not ok.any():
                 raise InputError("no plane's content shift could be measured")
+            shifts = np.full((calib.n_planes, 2), np.nan)
+            shifts[ok] = np.nanmedian(seen[:, ok], axis=0)
+            shifts[~ok] = shifts[ok].mean(axis=0)
+            detail = {"shifts_proj": np.round(shifts, 3).tolist()}
             if float(np.linalg.norm(shifts, axis=1).max()) < th.geometry_px[1]:
                 return None, detail
             # A camera move shifts the walls with the content, a projector move the content
