@@ -22,20 +22,26 @@ from rtdefocus.film.plan import plan_chunks
 PROJECTOR, CAMERA = (96, 72), (160, 120)
 CHUNK, OVERLAP = 8, 4             # 30 frames: 4 chunks, seams at 8, 16 and 24
 
+# Camera-view figures of these renders (deterministic), `tools/measure_gains.py --sections
+# render`: the lossless chunked render's largest distance from the serial compensation and its
+# smallest gain over geometry only; the default quality's largest codec loss and smallest gain
+# over geometry only (dB). Bounds: ACCURACY x the distances, EFFECT x the gains.
+ACCURACY, EFFECT = 1.5, 0.85
+MEASURED_ARCHIVE = {"off_serial": 0.0200, "gain": 7.601}
+MEASURED_DEFAULT = {"codec_loss": 0.1762, "gain": 5.866}
+
 
 def _procam(noise=None, seed=0):
     return rd.sim.VirtualProCam("cubicle", projector_size=PROJECTOR, camera_size=CAMERA,
                                 noise=noise, seed=seed)
 
 
-@pytest.fixture(scope="module")
-def film(tmp_path_factory):
+def make_film(root: Path) -> dict:
     """A set-up file (the simulator's oracle calibration), a 30-frame film with a tone (still,
     pans, a cut, a zoom, a fade), its decoded frames and their serial compensation."""
     from rtdefocus.sim import oracle_calibration
     from rtdefocus.study.eval_video import QUICK_SEGMENTS, make_clip
 
-    root = tmp_path_factory.mktemp("render")
     calib = oracle_calibration(_procam())
     setup = root / "setup.npz"
     calib.save(setup)
@@ -49,13 +55,30 @@ def film(tmp_path_factory):
             "inputs": inputs, "serial": serial, "comp": comp}
 
 
-@pytest.fixture(scope="module")
-def archive(film):
+def render_archive(film: dict):
     """The film rendered losslessly on 2 local worker processes, chunk files kept."""
     out = film["root"] / "local.mkv"
     result = render(film["setup"], film["path"], out, quality="archive", workers=2,
                     chunk_frames=CHUNK, overlap=OVERLAP, keep_work=True)
     return result, list(decode_rgb(out))
+
+
+@pytest.fixture(scope="module")
+def film(tmp_path_factory):
+    return make_film(tmp_path_factory.mktemp("render"))
+
+
+@pytest.fixture(scope="module")
+def archive(film):
+    return render_archive(film)
+
+
+def archive_figures(film: dict, frames) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the chunked render's camera-view PSNR off the serial compensation's (dB,
+    absolute) and its gain over geometry only (dB)."""
+    chunked, serial = _views(film, frames), _views(film, film["serial"])
+    geometry = _views(film, [film["comp"].warp(im) for im in film["inputs"]])
+    return np.abs(chunked - serial), chunked - geometry
 
 
 def _views(film, frames, noise=0.0):
@@ -109,7 +132,7 @@ def test_plan_chunks():
 
 @pytest.mark.slow
 def test_render_matches_serial_and_keeps_the_sound(film, archive):
-    """Rendered in 4 chunks on 2 processes, decoded: every frame (seams included) within 0.05 dB
+    """Rendered in 4 chunks on 2 processes, decoded: every frame (seams included) within 0.03 dB
     of the serial compensation in the camera's view, the projector's size and the film's rate,
     the compensation's gain over geometry only kept, and the tone's packets unchanged."""
     import av
@@ -121,11 +144,11 @@ def test_render_matches_serial_and_keeps_the_sound(film, archive):
     assert all(f.shape == (PROJECTOR[1], PROJECTOR[0], 3) for f in frames)
     with av.open(str(result.output)) as c:
         assert c.streams.video[0].average_rate == info.fps == 24
-    chunked, serial = _views(film, frames), _views(film, film["serial"])
-    worst = np.abs(chunked - serial)
-    assert worst.max() <= 0.05, f"frame {worst.argmax()}: {worst.max():.3f} dB from serial"
-    geometry = _views(film, [film["comp"].warp(im) for im in film["inputs"]])
-    assert (chunked - geometry).min() > 1.0           # the compensation survives, every frame
+    worst, gain = archive_figures(film, frames)
+    assert worst.max() <= ACCURACY * MEASURED_ARCHIVE["off_serial"], \
+        f"frame {worst.argmax()}: {worst.max():.3f} dB from serial"
+    # the compensation survives, every frame
+    assert gain.min() >= EFFECT * MEASURED_ARCHIVE["gain"], gain
     _same_audio(_audio_packets(film["path"]), _audio_packets(result.output))
 
 
@@ -204,11 +227,23 @@ def test_render_killed_resumes_without_redoing_chunks(film, archive, tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_default_quality_keeps_the_compensation(tmp_path, capsys):
+def test_cli_default_quality_keeps_the_compensation(tmp_path):
     """`rtdefocus render` at the default quality (H.264 4:4:4, crf 4) on the 800x600 corner of
     `eval --video` (smaller set-ups blur less and score far above 40 dB, where any codec's error
-    dominates): the camera's view of every decoded frame, still and panning, within 0.3 dB of
-    the uncompressed compensation's and well above geometry only; the tone's packets exact."""
+    dominates): the camera's view of every decoded frame, still and panning, within 0.27 dB of
+    the uncompressed compensation's and ~5 dB above geometry only; the tone's packets exact."""
+    db, frames, exact = default_quality_views(tmp_path)
+    for i, d in enumerate(db):
+        assert d["exact"] - d["coded"] <= ACCURACY * MEASURED_DEFAULT["codec_loss"], (i, d)
+        assert d["coded"] - d["geometry"] >= EFFECT * MEASURED_DEFAULT["gain"], (i, d)
+        assert not np.array_equal(frames[i], exact[i])          # it is a lossy encoding
+
+
+def default_quality_views(root: Path):
+    """`rtdefocus render` at the default quality of a still frame and a pan at 800x600 (see
+    the test): per frame the camera-view PSNR (dB) of the uncompressed compensation
+    (``exact``), the decoded one (``coded``) and geometry only; the decoded frames; the exact
+    ones. Checks the tone's packets on the way."""
     from rtdefocus import cli
     from rtdefocus.sim import oracle_calibration
     from rtdefocus.study.eval_video import Segment, make_clip
@@ -217,27 +252,27 @@ def test_cli_default_quality_keeps_the_compensation(tmp_path, capsys):
     size, camera = (800, 600), (1280, 960)
     procam = rd.sim.VirtualProCam("cubicle", projector_size=size, camera_size=camera, noise=0.0)
     calib = oracle_calibration(procam)
-    calib.save(tmp_path / "setup.npz")
+    calib.save(root / "setup.npz")
     clip = [f for _, f in make_clip(size, (Segment("still", "still", 1),
                                            Segment("pan", "pan", 2, 8.0)))]
-    write_film(tmp_path / "film.mp4", clip, fps=25)
-    out = tmp_path / "out.mp4"
-    code = cli.main(["-q", "render", str(tmp_path / "setup.npz"), str(tmp_path / "film.mp4"),
+    write_film(root / "film.mp4", clip, fps=25)
+    out = root / "out.mp4"
+    code = cli.main(["-q", "render", str(root / "setup.npz"), str(root / "film.mp4"),
                      "-o", str(out), "--workers", "0"])
-    assert code == 0, capsys.readouterr().err
+    assert code == 0, "rtdefocus render failed"
     frames = list(decode_rgb(out))
-    _same_audio(_audio_packets(tmp_path / "film.mp4"), _audio_packets(out), tol=1e-9)
-    info = probe(tmp_path / "film.mp4")
+    _same_audio(_audio_packets(root / "film.mp4"), _audio_packets(out), tol=1e-9)
+    info = probe(root / "film.mp4")
     comp = rd.Compensator(calib)
     mask = rect_mask(calib.display_rect(size), (camera[1], camera[0]))
+    db, exact = [], []
     for i, image in enumerate(read_frames(info, 0, info.n_frames)):
-        exact = comp.compensate(image, iterations=40)
+        exact.append(comp.compensate(image, iterations=40))
         ref = camera_view(procam, calib, comp.warp(image), sharp=True)
-        db = {k: psnr(camera_view(procam, calib, f), ref, mask)
-              for k, f in (("exact", exact), ("coded", frames[i]), ("geometry", comp.warp(image)))}
-        assert db["exact"] - db["coded"] <= 0.3, (i, db)
-        assert db["coded"] - db["geometry"] > 2.0, (i, db)
-        assert not np.array_equal(frames[i], exact)             # it is a lossy encoding
+        db.append({k: psnr(camera_view(procam, calib, f), ref, mask)
+                   for k, f in (("exact", exact[-1]), ("coded", frames[i]),
+                                ("geometry", comp.warp(image)))})
+    return db, frames, exact
 
 
 @pytest.mark.parametrize("case", ["no film", "not a video", "no setup", "output folder",

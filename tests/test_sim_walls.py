@@ -79,10 +79,9 @@ def test_bowed_walls_leave_their_planes_smoothly(preset, lo, hi):
     assert np.nanmax(np.abs(np.diff(d, axis=1))) < 0.05 * np.nanmax(d)
 
 
-@pytest.mark.parametrize("preset", ["bowed", "sagging"])
-def test_camera_sees_the_dense_map_not_the_homography(preset):
-    """Sharp spots land where ``cam_from_proj`` says, and measurably off the homography in the
-    bowed part."""
+def spots_against_the_maps(preset: str):
+    """Sharp spots on a projector grid: their camera centroids' distance (camera px) from the
+    exact map and from their plane's homography, and which of them are on the bowed part."""
     pc = procam(preset)
     t = pc.truth
     d = off_plane(t)
@@ -90,15 +89,50 @@ def test_camera_sees_the_dense_map_not_the_homography(preset):
     yy, xx = np.mgrid[20:hp - 20:40, 20:wp - 20:40]
     xy = np.stack([xx.ravel(), yy.ravel()], axis=1)
     got = spot_centroids(pc, xy)
-    want = t.cam_from_proj[xy[:, 1], xy[:, 0]]
-    err = np.linalg.norm(got - want, axis=1)
-    assert np.median(err) < 0.1 and err.max() < 0.3
+    err = np.linalg.norm(got - t.cam_from_proj[xy[:, 1], xy[:, 0]], axis=1)
     bent = d[xy[:, 1], xy[:, 0]] > 0.5
-    assert bent.sum() >= 3
     plane = t.plane_map[xy[:, 1], xy[:, 0]]
     h_err = np.array([np.linalg.norm(apply_h(t.H_cam_from_proj[p], xy[i:i + 1].astype(float))[0]
                                      - got[i]) for i, p in enumerate(plane)])
-    assert np.all(h_err[bent] > err[bent] + 0.3)
+    return err, h_err, bent
+
+
+# Spots off the exact map (median, max camera px) and off the homography beyond that on the
+# bowed part (min): `tools/measure_gains.py --sections walls`. Bounds: 1.5x the errors, 85 %
+# of the bow.
+MEASURED_SPOTS = {"bowed": (0.0357, 0.0781, 0.4956), "sagging": (0.0364, 0.0753, 0.4966)}
+
+
+@pytest.mark.parametrize("preset", ["bowed", "sagging"])
+def test_camera_sees_the_dense_map_not_the_homography(preset):
+    """Sharp spots land where ``cam_from_proj`` says, and measurably off the homography in the
+    bowed part."""
+    err, h_err, bent = spots_against_the_maps(preset)
+    median, worst, bow = MEASURED_SPOTS[preset]
+    assert np.median(err) <= 1.5 * median and err.max() <= 1.5 * worst, err
+    assert bent.sum() >= 3
+    assert np.all(h_err[bent] - err[bent] >= 0.85 * bow), h_err[bent] - err[bent]
+
+
+def gap_spots():
+    """Spots on the gap's far wall: their centroids' distance (camera px) from the exact map,
+    and from the right wall's plane carried on into the gap."""
+    pc = procam("gap")
+    t = pc.truth
+    far = t.plane_map == -1
+    hp, wp = far.shape
+    cols = np.flatnonzero(far.any(axis=0))
+    mid = int((cols.min() + wp) / 2)
+    xy = np.array([[mid, y] for y in range(20, hp - 10, 40)])
+    got = spot_centroids(pc, xy, half=3)
+    seen = np.linalg.norm(got - t.cam_from_proj[xy[:, 1], xy[:, 0]], axis=1)
+    extended = np.linalg.norm(got - apply_h(t.H_cam_from_proj[1], xy.astype(float)), axis=1)
+    return seen, extended
+
+
+# The far wall's spots off the exact map (max camera px), off the extended plane (min):
+# `tools/measure_gains.py --sections walls`.
+MEASURED_GAP = (0.2466, 62.888)
 
 
 def test_gap_shows_a_far_wall_that_is_no_plane():
@@ -115,14 +149,11 @@ def test_gap_shows_a_far_wall_that_is_no_plane():
     assert t.depth_map[far].min() > t.depth_map[~far].max()
     assert t.radius_map[far].mean() > t.radius_map[~far].mean()
     assert (t.extra["camera_plane_map"] == -1).sum() > 0
-    # its pixels light the camera where the exact map says
-    mid = int((cols.min() + wp) / 2)
-    xy = np.array([[mid, y] for y in range(20, hp - 10, 40)])
-    got = spot_centroids(pc, xy, half=3)
-    seen = np.linalg.norm(got - t.cam_from_proj[xy[:, 1], xy[:, 0]], axis=1)
-    # the right wall's plane, carried on into the gap, would put them far off
-    extended = np.linalg.norm(got - apply_h(t.H_cam_from_proj[1], xy.astype(float)), axis=1)
-    assert seen.max() < 0.3 and extended.min() > 10 * seen.max()
+    # its pixels light the camera where the exact map says; the right wall's plane, carried on
+    # into the gap, would put them far off
+    seen, extended = gap_spots()
+    assert seen.max() <= 1.5 * MEASURED_GAP[0], seen
+    assert extended.min() >= 0.85 * MEASURED_GAP[1], extended
 
 
 def test_clipping_exposure_clips_where_the_plain_one_does_not():
@@ -175,15 +206,31 @@ def test_bowed_wall_bends_camera_lines_a_flat_one_does_not():
         assert row_bend(plain, row, right) < 0.01
 
 
+def gap_oracle_kernel_errors() -> np.ndarray:
+    """The oracle's kernels on the gap's far wall against the truth's (relative L2)."""
+    pc = procam("gap")
+    calib = sim.oracle_calibration(pc)
+    t = pc.truth
+    far = np.argwhere(t.plane_map == -1)[::500]
+    errs = []
+    for y, x in far[:5]:
+        k = calib.kernel_at(x, y)
+        kt = t.kernel_at(x, y, size=k.shape[0])
+        errs.append(np.linalg.norm(k - kt) / np.linalg.norm(kt))
+    return np.array(errs)
+
+
+# The far wall's oracle kernels off the truth (largest relative L2): the truth's own kernels,
+# 5.1e-8 measured (float32 rounding), `tools/measure_gains.py --sections walls`; bounded at
+# float32 rounding, not at a multiple of it.
+GAP_KERNEL_ROUNDING = 1e-6
+
+
 def test_oracle_calibration_of_a_gap_set_up():
     """The oracle's kernels cover the far wall too (its radii are the largest), each PSF on a
     plane of the set-up."""
     pc = procam("gap")
     calib = sim.oracle_calibration(pc)
-    t = pc.truth
     assert calib.n_planes == 2 and set(np.unique(calib.psf_plane)) <= {0, 1}
-    far = np.argwhere(t.plane_map == -1)[::500]
-    for y, x in far[:5]:
-        k = calib.kernel_at(x, y)
-        kt = t.kernel_at(x, y, size=k.shape[0])
-        assert np.linalg.norm(k - kt) / np.linalg.norm(kt) < 0.05
+    errs = gap_oracle_kernel_errors()
+    assert len(errs) == 5 and errs.max() <= GAP_KERNEL_ROUNDING, errs

@@ -19,6 +19,9 @@ Sections (``--sections``, comma-separated):
 ``rooms``       tests/test_rooms_e2e.py: the three-plane rooms' figures.
 ``surface``     tests/test_surface.py: flatten's grey field and photograph on the fabric walls.
 ``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
+``walls``       tests/test_geometry_walls.py: the nearly-flat walls' model, fold, checkerboard.
+``watch``       tests/test_watch_residual.py: the residual report's errors per change.
+``render``      tests/test_render.py: the chunked render off the serial one, the codec's loss.
 
 Example::
 
@@ -241,11 +244,126 @@ def section_field() -> None:
               flush=True)
 
 
+def section_walls() -> None:
+    """tests/test_geometry_walls.py: the nearly-flat walls (bowed, sagging) and the flat
+    cubicle through the geometry stage, against the simulator's exact map."""
+    import test_geometry_walls as tw
+    from setup_figures import fold_error, homography_rms
+
+    for preset in ("bowed", "sagging"):
+        calib, truth = tw.geometry(preset), tw.procam(preset).truth
+        rms, bend = tw.checker(preset, calib)
+        print(f"walls {preset:8s} model {homography_rms(calib, truth):.4f} px  fold "
+              f"{fold_error(calib, truth):.4f} px  checkerboard {rms:.4f} px  bend {bend:.4f} px"
+              f"  residual max {max(calib.meta['geometry']['residual']['max_px']):.3f} px",
+              flush=True)
+    flat, truth = tw.geometry("bowed", residual=False), tw.procam("bowed").truth
+    print(f"walls bowed without the residual: model {homography_rms(flat, truth):.4f} px  "
+          f"checkerboard {tw.checker('bowed', flat)[0]:.4f} px", flush=True)
+    forced, calib = tw.geometry("sagging", planes=2), tw.geometry("sagging")
+    print(f"walls sagging planes=2 vs found: {tw.map_difference(forced, calib):.4f} px", flush=True)
+    calib, flat = tw.geometry("cubicle"), tw.geometry("cubicle", residual=False)
+    res = calib.meta["geometry"]["residual"]
+    print(f"walls cubicle flat-fit rms {max(res['rms_px_flat']):.4f} px  checkerboard with / "
+          f"without the residual {tw.checker('cubicle', calib)[0]:.6f} / "
+          f"{tw.checker('cubicle', flat)[0]:.6f} px", flush=True)
+    import test_sim_walls as ts
+
+    for preset in ("bowed", "sagging"):
+        err, h_err, bent = ts.spots_against_the_maps(preset)
+        print(f"walls sim {preset:8s} spots off the exact map: median {np.median(err):.4f} max "
+              f"{err.max():.4f} px; off the homography where bent, less the exact map's: min "
+              f"{(h_err[bent] - err[bent]).min():.4f} px", flush=True)
+    seen, extended = ts.gap_spots()
+    kernel = ts.gap_oracle_kernel_errors()
+    print(f"walls sim gap: far-wall spots off the exact map max {seen.max():.4f} px, off the "
+          f"extended plane min {extended.min():.3f} px ({extended.min() / seen.max():.1f}x); "
+          f"oracle kernels off the truth max {kernel.max():.4f}", flush=True)
+
+
+def section_watch() -> None:
+    """tests/test_watch_residual.py: the residual report's errors against the virtual set-up's
+    changes (its own settings: 320x240, the oracle calibration, smooth content)."""
+    import math
+
+    import test_watch_residual as tw
+
+    from rtdefocus.watch import residual_report
+
+    for preset in ("cubicle", "webcam_cubicle"):
+        pc, calib, frame = tw.setup(preset)
+        r = residual_report(calib, frame, pc.capture(frame))
+        print(f"watch {preset:15s} unchanged: gain {abs(r.gain - 1):.4f} off, ambient "
+              f"{abs(r.ambient_added):.5f}, shift {np.abs(r.shifts_proj).max():.4f} px, rms "
+              f"{r.rms_before / pc.noise:.3f} x noise, watched {r.watched / (320 * 240):.3f}",
+              flush=True)
+        gamma0 = pc.truth.ambient_proj.copy()
+        pc.set_light(ambient=pc.ambient + 0.1)
+        r = residual_report(calib, frame, pc.capture(frame))
+        added = float((pc.truth.ambient_proj - gamma0).mean())
+        print(f"watch {preset:15s} light: ambient {abs(r.ambient_added / added - 1):.4f} rel off,"
+              f" gain {abs(r.gain - 1):.4f} off, shift {np.abs(r.shifts_proj).max():.4f} px, "
+              f"rms after / before {r.rms_after / r.rms_before:.4f}", flush=True)
+    for preset in ("cubicle", "webcam_cubicle", "fabric"):
+        pc, calib, frame = tw.setup(preset)
+        pc.bump(projector_shift_px=3.0)
+        r = residual_report(calib, frame, pc.capture(frame))
+        nominal = max(np.abs(r.shifts_proj[p] - [3.0, 0.0]).max() for p in range(calib.n_planes))
+        true = max(np.abs(r.shifts_proj[p] - tw.true_motion(calib, pc, p)).max()
+                   for p in range(calib.n_planes))
+        print(f"watch {preset:15s} projector shift: off nominal {nominal:.4f} px, off true "
+              f"{true:.4f} px, ambient {abs(r.ambient_added):.5f}, gain {abs(r.gain - 1):.4f} off",
+              flush=True)
+    pc, calib, frame = tw.setup("cubicle")
+    pc.bump(projector_yaw_deg=0.3)
+    r = residual_report(calib, frame, pc.capture(frame))
+    nom = pc.K_proj[0, 0] * math.tan(math.radians(0.3))
+    nominal = max(np.abs(r.shifts_proj[p] - [nom, 0.0]).max() for p in range(calib.n_planes))
+    true = max(np.abs(r.shifts_proj[p] - tw.true_motion(calib, pc, p)).max()
+               for p in range(calib.n_planes))
+    print(f"watch cubicle         projector turn: off nominal {nominal:.4f} px, off true "
+          f"{true:.4f} px", flush=True)
+    pc, calib, frame = tw.setup("webcam_cubicle", detail_px=1.5)
+    base = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    pc.set_light(ambient=pc.ambient + 0.1)
+    lit = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    pc.refocus(1.15)
+    blurred = residual_report(calib, frame, pc.capture(frame)).band_ratio
+    print(f"watch webcam_cubicle   band ratio: light {abs(lit / base - 1):.4f} rel off, blur "
+          f"{1 - blurred / base:.4f} lower", flush=True)
+    for preset in ("cubicle", "webcam_cubicle"):
+        pc, calib, frame = tw.setup(preset)
+        pc.bump(camera_shift_px=(4.0, 0.0))
+        r = residual_report(calib, frame, pc.capture(frame))
+        true = max(np.abs(r.shifts_proj[p] - tw.true_motion(calib, pc, p)).max()
+                   for p in range(calib.n_planes))
+        print(f"watch {preset:15s} camera shift: off true {true:.4f} px", flush=True)
+
+
+def section_render() -> None:
+    """tests/test_render.py: the chunked lossless render against the serial compensation, and
+    the default quality's codec loss, in the camera's view."""
+    import test_render as tr
+
+    with tempfile.TemporaryDirectory() as root:
+        film = tr.make_film(Path(root))
+        _, frames = tr.render_archive(film)
+        off, gain = tr.archive_figures(film, frames)
+        print(f"render archive: worst {off.max():.4f} dB off serial, gain over geometry only "
+              f"min {gain.min():.3f} dB", flush=True)
+    with tempfile.TemporaryDirectory() as root:
+        db, _, _ = tr.default_quality_views(Path(root))
+        print("render default quality: codec loss " + " ".join(
+            f"{d['exact'] - d['coded']:.4f}" for d in db) + " dB; coded over geometry only "
+            + " ".join(f"{d['coded'] - d['geometry']:.3f}" for d in db) + " dB", flush=True)
+
+
 SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
             "webcam": section_webcam, "reference": section_reference, "field": section_field,
             "radiometry": section_radiometry, "geometry": section_geometry,
             "video": section_video, "psf": section_psf, "rooms": section_rooms,
-            "surface": section_surface}
+            "surface": section_surface, "walls": section_walls, "watch": section_watch,
+            "render": section_render}
 
 
 def main(argv=None) -> int:

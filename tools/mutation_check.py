@@ -180,6 +180,11 @@ MUTATIONS = [
              "        if True:\n            return \"compensate\", min(iterations, max(fit, b.minimum))\n",
              ("tests/test_stream.py::test_a_slow_device_keeps_up_with_geometry_only_frames",),
              "a late frame is always compensated, never shown with geometry only"),
+    Mutation("catch-up-fixed-margin", "catch-up", "rtdefocus/stream/catch_up.py",
+             "        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE)\n",
+             "        ratio = None\n",
+             ("tests/test_catch_up.py::test_a_steady_device_near_its_deadline_compensates_moving_frames",),
+             "the safety margin ignores the measured spread of the costs"),
     # ---------------------------------------------------------------- the GLSL warp
     Mutation("glsl-half-texel", "GLSL", "kernels/warp.glsl",
              "    vec2 st = q.xy / q.z;\n", "    vec2 st = q.xy / q.z + 0.5 / u_image_size;\n",

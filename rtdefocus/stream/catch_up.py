@@ -22,16 +22,23 @@ log = logging.getLogger(__name__)
 
 #: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
 #: ends before the frame after next arrives (two periods after it was read); otherwise it is
-#: shown with geometry only. The margin starts at 1 / CATCH_UP_SHARE (1.43): a moving frame's
-#: spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores; 80-155
-#: ms on 2 cores shared with other jobs). Each compensated frame that still ends late raises
-#: the margin by CATCH_UP_MARGIN_STEP (up to CATCH_UP_MARGIN_MAX); it steps back after
-#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
-#: while the margin is raised (up to CATCH_UP_CALM_MAX). There are no blind probes: a frame is
-#: compensated only where the measured costs say it will be on time, so on a device that
-#: cannot keep up, moving content settles to geometry only and no frame is lost to a probe.
+#: shown with geometry only. The margin is the measured spread of the device's costs: the
+#: CATCH_UP_QUANTILE of the last compensated frames' measured / expected costs
+#: (:meth:`IterationBudget.cost_ratio`) with CATCH_UP_HEADROOM on top, at least
+#: CATCH_UP_MARGIN_MIN, so a steady device runs close to its deadline and a jittery one keeps
+#: the room its spikes need (one rare spike does not move a quantile: the late-frame step below
+#: answers it). Until enough frames are measured it is 1 / CATCH_UP_SHARE (1.43): a moving
+#: frame's spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL
+#: cores). Each compensated frame that still ends late multiplies it by CATCH_UP_MARGIN_STEP;
+#: that steps back after CATCH_UP_CALM moving frames without a late one, a wait that doubles
+#: with each late frame while it is raised (up to CATCH_UP_CALM_MAX). The margin stays within
+#: [CATCH_UP_MARGIN_MIN, CATCH_UP_MARGIN_MAX]. There are no blind probes: a frame is compensated
+#: only where the measured costs say it will be on time, so on a device that cannot keep up,
+#: moving content settles to geometry only and no frame is lost to a probe.
 CATCH_UP_SHARE = 0.7
-CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX = 1.25, 4.0
+CATCH_UP_QUANTILE, CATCH_UP_HEADROOM = 0.9, 1.1
+CATCH_UP_MARGIN_MIN, CATCH_UP_MARGIN_MAX = 1.1, 4.0
+CATCH_UP_MARGIN_STEP = 1.25
 CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
@@ -54,11 +61,19 @@ class CatchUp:
 
     def __init__(self, budget: IterationBudget):
         self.budget = budget
-        self.margin = 1.0 / CATCH_UP_SHARE   # the safety margin on costs
+        self._raised = 1.0                   # the margin's factor for late frames
         self._calm = CATCH_UP_CALM           # ... moving frames before it steps back
         self._calm_left = CATCH_UP_CALM
         self._still_since = 0                # index of the current picture's first frame
         self._settled = False                # ... and whether it was settled
+
+    @property
+    def margin(self) -> float:
+        """The safety margin on expected costs (see :data:`CATCH_UP_SHARE`)."""
+        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE)
+        spread = (1.0 / CATCH_UP_SHARE if ratio is None
+                  else max(CATCH_UP_MARGIN_MIN, CATCH_UP_HEADROOM * ratio))
+        return min(spread * self._raised, CATCH_UP_MARGIN_MAX)
 
     def new_picture(self, index: int) -> None:
         """Frame ``index`` shows a picture other than the frame before it."""
@@ -84,8 +99,9 @@ class CatchUp:
         rest = b.frame_seconds(0, repeat, deadline=True)
         if rest is None:
             return "compensate", iterations
-        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - self.margin * rest
-        per_it = self.margin * b.per_iteration
+        margin = self.margin
+        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - margin * rest
+        per_it = margin * b.per_iteration
         fit = int(left / per_it) if per_it > 0 else iterations
         if fit >= b.minimum:
             return "compensate", min(iterations, fit)
@@ -95,7 +111,7 @@ class CatchUp:
             # One settle per picture: one that has lasted CATCH_UP_STILL_WAIT times as long as
             # its compensation takes seldom ends during it (a late frame drops copies of it).
             lasted = (frame.index - self._still_since) * b.period
-            room = lasted / (CATCH_UP_STILL_WAIT * self.margin) - rest
+            room = lasted / (CATCH_UP_STILL_WAIT * margin) - rest
             n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
             if not self._settled and n >= b.minimum:
                 self._settled = True
@@ -109,19 +125,19 @@ class CatchUp:
         """After a moving frame: a compensated one that ended after the frame after next
         arrived raises the safety margin; moving frames without a late one step it back (see
         :data:`CATCH_UP_SHARE`)."""
-        base = 1.0 / CATCH_UP_SHARE
         if compensated and time.perf_counter() - frame.t_read > 2.0 * self.budget.period:
-            if self.margin > base:           # late again before the margin was back
+            if self._raised > 1.0:           # late again before the margin was back
                 self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)
-            self.margin = min(self.margin * CATCH_UP_MARGIN_STEP, CATCH_UP_MARGIN_MAX)
+            self._raised = min(self._raised * CATCH_UP_MARGIN_STEP,
+                               CATCH_UP_MARGIN_MAX / CATCH_UP_MARGIN_MIN)
             self._calm_left = self._calm
             log.debug("catch-up: frame %d ended late; safety margin %.2f", frame.index,
                       self.margin)
             return
-        if self.margin <= base:
+        if self._raised <= 1.0:
             self._calm = self._calm_left = CATCH_UP_CALM
             return
         self._calm_left -= 1
         if self._calm_left <= 0:
-            self.margin = max(base, self.margin / CATCH_UP_MARGIN_STEP)
+            self._raised = max(1.0, self._raised / CATCH_UP_MARGIN_STEP)
             self._calm_left = self._calm

@@ -83,6 +83,9 @@ class KeyDispatcher:
 #: (``deadline=True``): one slow frame does not hold the estimate up, a lasting change moves it
 #: within two frames.
 RECENT = 3
+#: Frames whose measured / expected costs :meth:`IterationBudget.cost_ratio` takes a quantile
+#: of (about a second of video), and how many it needs before it answers.
+SPREAD_FRAMES, SPREAD_MIN = 24, 8
 
 
 class IterationBudget:
@@ -93,6 +96,10 @@ class IterationBudget:
     number of iterations that fits in what is left of the period, clamped to
     ``[minimum, maximum]`` and allowed to grow by at most half per frame (a slow frame is
     answered at once, a fast one cautiously).
+
+    For each frame timed for the deadline it also keeps how far its measured cost was from the
+    one expected for it (:meth:`cost_ratio`): the spread a safety margin on expected costs must
+    cover.
 
     A *repeated* frame (the same picture again: a paused video, a slide) skips the warp and the
     motion estimate, so its rest costs a fraction of a new frame's: the two kinds keep their own
@@ -116,6 +123,7 @@ class IterationBudget:
                                                        for k in (False, True)}
         self._iterations = {False: start, True: start}
         self._expected = {False: False, True: False}   # the kind's rest is only expected
+        self._ratios: collections.deque = collections.deque(maxlen=SPREAD_FRAMES)
 
     @property
     def iterations(self) -> int:
@@ -146,6 +154,17 @@ class IterationBudget:
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
+    def cost_ratio(self, quantile: float) -> float | None:
+        """The ``quantile`` (0-1) of measured / expected seconds over the last
+        :data:`SPREAD_FRAMES` frames timed for the deadline, of either kind, each against its
+        kind's :meth:`frame_seconds` (``deadline=True``) just before it was recorded; a kind's
+        merely expected rest is no measure. The sample at or below the quantile: one spike
+        among a few frames does not lift it. About 1 on a steady device, more on a jittery
+        one. None before :data:`SPREAD_MIN` such frames."""
+        if len(self._ratios) < SPREAD_MIN:
+            return None
+        return float(np.quantile(np.asarray(self._ratios), quantile, method="lower"))
+
     def expect(self, rest: float, repeat: bool = True) -> None:
         """An expected rest (seconds, all but the solve) for a kind not measured yet; the
         kind's first measured frame replaces it."""
@@ -170,6 +189,10 @@ class IterationBudget:
         False: a new frame cheaper than the kind's usual, such as a cut's cold start, left out
         of the deadline's median); return the budget for the next frame of that kind."""
         repeat = bool(repeat)
+        if deadline and self._overhead[repeat] is not None and not self._expected[repeat]:
+            expected = self.frame_seconds(iterations, repeat, deadline=True)
+            if expected:
+                self._ratios.append(frame_seconds / expected)
         if iterations > 0:
             self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
         rest = max(0.0, frame_seconds - solve_seconds)

@@ -1,0 +1,162 @@
+"""The live player's catch-up decisions and its safety margin, on a simulated clock.
+
+A live source at ``fps`` feeds the real :class:`CatchUp` and :class:`IterationBudget`, with the
+Player's drop policy (a queue of one frame: a frame that arrives while one waits drops the
+waiting one) and the costs of a paced device: the loop's timing is the simulation's, so the
+outcome is the same on any machine and under any load (the real player with a paced device is
+tested in tests/test_stream.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rtdefocus.stream import catch_up
+from rtdefocus.stream.catch_up import CATCH_UP_MARGIN_MIN, CATCH_UP_SHARE, CatchUp
+from rtdefocus.stream.controls import IterationBudget
+from rtdefocus.stream.sources import Frame
+
+PER_ITERATION = 0.004      # seconds per solver iteration
+GEOMETRY = 0.008           # a frame shown with geometry only (a warp)
+STILL_REST = 0.012         # a repeated picture's rest (no warp, no motion estimate)
+IMAGE = np.zeros((2, 2, 3), np.uint8)
+
+
+class Clock:
+    """The simulation's time, read by the catch-up as ``time.perf_counter``."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def perf_counter(self) -> float:
+        return self.t
+
+
+def play(monkeypatch, factors, *, rest, fps=30.0, still=30, fixed_margin=False):
+    """Play ``still`` frames of one picture, then one new picture per frame, live at ``fps``;
+    compensating frame i costs ``factors[i]`` times (``rest`` + iterations x PER_ITERATION) for
+    a new picture, (STILL_REST + iterations x PER_ITERATION) for a repeated one.
+    ``fixed_margin``: the catch-up without measured spread (its start margin).
+    Returns ``(shown, lost, compensated)``: the frames shown, the moving frames never shown
+    (dropped, not copies of a picture on the screen), the moving frames compensated."""
+    clock = Clock()
+    monkeypatch.setattr(catch_up, "time", clock)
+    n, period = len(factors), 1.0 / fps
+    budget = IterationBudget(fps)
+    if fixed_margin:
+        budget.cost_ratio = lambda quantile: None
+    cu = CatchUp(budget)
+    budget.update(rest + PER_ITERATION, PER_ITERATION, 1)          # the Player's warm-up
+    arrived, queued, shown, lost, compensated = 0, None, [], [], []
+    prev_compensated = False
+    while True:
+        while arrived < n and arrived * period <= clock.t:             # arrivals until now
+            if queued is not None and queued >= still:
+                lost.append(queued)                                    # (a still's copy is not)
+            queued, arrived = arrived, arrived + 1
+        if queued is None:
+            if arrived >= n:
+                break
+            clock.t = arrived * period
+            continue
+        i, queued = queued, None
+        frame = Frame(i, IMAGE, i * period)
+        is_still = 0 < i < still
+        repeat = is_still and prev_compensated
+        if not is_still:
+            cu.new_picture(i)
+        action, its = cu.decide(frame, budget.iterations_for(repeat), is_still, repeat,
+                                can_reshow=prev_compensated)
+        prev_compensated = action != "geometry"
+        if action == "geometry":
+            clock.t += GEOMETRY
+        elif action in ("compensate", "settle"):
+            solve = factors[i] * its * PER_ITERATION
+            cost = factors[i] * (STILL_REST if repeat else rest) + solve
+            clock.t += cost
+            budget.update(cost, solve, its, repeat=repeat)
+            if not repeat:
+                budget.expect(STILL_REST, repeat=True)
+            if i >= still:
+                compensated.append(i)
+        shown.append(i)
+        if not is_still or action == "compensate":
+            cu.judge(frame, compensated=action == "compensate")
+    return shown, lost, compensated
+
+
+def steady(n=110, spread=0.02, seed=0):
+    """A steady device: every frame's cost within +-``spread`` of its usual."""
+    rng = np.random.default_rng(seed)
+    return list(1 + spread * rng.uniform(-1, 1, n))
+
+
+def jittery(n=110, spike=1.4, every=4, seed=0):
+    """A jittery device: +-5 % on every frame, and every ``every``-th frame ``spike`` times
+    slower (another program's bursts)."""
+    return [f * (spike if i % every == every - 1 else 1.0)
+            for i, f in enumerate(steady(n, 0.05, seed))]
+
+
+def test_a_steady_device_near_its_deadline_compensates_moving_frames(monkeypatch):
+    """At 30 fps a moving frame that costs ~54 ms (0.8 of the two periods it may take) on a
+    device that varies by 2 %: the start margin (1.43) would never compensate one; the margin
+    measured from the device's spread compensates most moving frames and loses none."""
+    costs = steady()
+    n_moving = len(costs) - 30
+    _, lost_fixed, comp_fixed = play(monkeypatch, costs, rest=0.050, fixed_margin=True)
+    shown, lost, comp = play(monkeypatch, costs, rest=0.050)
+    assert lost_fixed == [] and len(comp_fixed) == 0
+    assert lost == [], lost
+    assert len(comp) >= n_moving // 2, (len(comp), n_moving)
+    assert shown[-1] == len(costs) - 1
+
+
+def test_the_margin_follows_the_measured_spread_both_ways():
+    """The margin is the measured spread: small on a steady device, as large as the spikes on
+    a jittery one, the start margin before enough frames are measured; it comes back down when
+    the device steadies."""
+    budget = IterationBudget(30.0)
+    cu = CatchUp(budget)
+    assert cu.margin == pytest.approx(1.0 / CATCH_UP_SHARE)
+    for f in jittery(n=24, spike=1.6):
+        budget.update(f * (0.030 + PER_ITERATION), f * PER_ITERATION, 1)
+    assert cu.margin >= 1.5, cu.margin
+    for f in steady(n=24, spread=0.01):
+        budget.update(f * (0.030 + PER_ITERATION), f * PER_ITERATION, 1)
+    assert CATCH_UP_MARGIN_MIN <= cu.margin <= 1.15, cu.margin
+
+
+def test_a_jittery_device_loses_no_moving_frame(monkeypatch):
+    """Every fourth frame 1.4x slower: the margin keeps the room the spikes need, so no moving
+    frame is lost (geometry only, at 8 ms a frame, shows them all), and the device still
+    compensates moving frames; the start margin (1.43), and a margin that ignored the spikes
+    (a steady device's), would lose frames here."""
+    costs = jittery()
+    shown, lost, comp = play(monkeypatch, costs, rest=0.036)
+    assert lost == [], lost
+    assert len(comp) >= 10, len(comp)
+    _, lost_fixed, _ = play(monkeypatch, costs, rest=0.036, fixed_margin=True)
+    assert lost_fixed, "the spikes should cost a frame under the start margin"
+    monkeypatch.setattr(IterationBudget, "cost_ratio", lambda self, q: 1.0)
+    _, lost_blind, _ = play(monkeypatch, costs, rest=0.036)
+    assert lost_blind, "the spikes should cost frames under a steady device's margin"
+
+
+def test_a_late_frame_raises_the_margin_and_calm_frames_bring_it_back(monkeypatch):
+    """A compensated frame that ends after the frame after next arrived multiplies the margin
+    by CATCH_UP_MARGIN_STEP; moving frames on time step it back."""
+    clock = Clock()
+    monkeypatch.setattr(catch_up, "time", clock)
+    budget = IterationBudget(30.0)
+    cu = CatchUp(budget)
+    start = cu.margin
+    frame = Frame(0, IMAGE, 0.0)
+    clock.t = 0.1                                     # > 2 periods after it was read
+    cu.judge(frame, compensated=True)
+    assert cu.margin == pytest.approx(start * catch_up.CATCH_UP_MARGIN_STEP)
+    clock.t = 0.01
+    for _ in range(catch_up.CATCH_UP_CALM):
+        cu.judge(frame, compensated=True)
+    assert cu.margin == pytest.approx(start)
