@@ -1,6 +1,9 @@
 """Watching the show: what the camera should see of the frame on the wall, and what a
-capture says changed (:mod:`~rtdefocus.watch.residual`)."""
+capture says changed (:mod:`~rtdefocus.watch.residual`), prepared once per calibration
+(:mod:`~rtdefocus.watch.predictor`)."""
 
-from .residual import ResidualReport, observe_proj, predict_proj, residual_report
+from .predictor import ResidualPredictor
+from .residual import ResidualReport, observe_proj, predict_proj, predictor_for, residual_report
 
-__all__ = ["ResidualReport", "observe_proj", "predict_proj", "residual_report"]
+__all__ = ["ResidualPredictor", "ResidualReport", "observe_proj", "predict_proj",
+           "predictor_for", "residual_report"]

@@ -1,0 +1,305 @@
+"""The residual report with everything that does not change between reports kept.
+
+:class:`ResidualPredictor` is built once per calibration: the camera→projector resampling
+maps and what the camera sees, the watched pixels of each plane and their phase correlation
+windows, the albedo and ambient maps, the camera and projector response tables, and the
+kernel field, on the OpenCL device (``kernels/blur.cl`` through :class:`~rtdefocus.cl.blur.ClBlur`)
+or as the NumPy reference's weight maps. A report then costs one forward blur, one resampling
+of the capture and the per-plane alignment. The maths is :mod:`~rtdefocus.watch.residual`'s;
+the alignment is :mod:`~rtdefocus.watch.align`.
+
+The device work runs on a queue of its own (a context the watcher shares with no one), so a
+report taken on a background thread never waits on, or holds up, the show's frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..calib.file import Calibration
+from ..calib.radiometry.camera_response import linearize
+from ..calib.radiometry.stage import projector_to_camera_maps
+from ..errors import DeviceError, InputError
+from ..reference.blur import blur_forward_filter2d, weight_maps
+from ..reference.lut import decode_lut
+from .align import PlaneWindow, band_ratio, plane_shift, watched_planes
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BACKENDS", "ResidualPredictor", "ResidualReport", "default_margin"]
+
+BACKENDS = ("auto", "opencl", "numpy")
+
+_warned_no_opencl = False
+_runtime = None
+_runtime_lock = threading.Lock()
+
+
+@dataclass
+class ResidualReport:
+    """What one capture says about the calibration (see :func:`~.residual.residual_report`).
+
+    Attributes
+    ----------
+    gain : camera light observed per unit predicted (1: unchanged exposure and albedo).
+    ambient_added : mean camera-linear light added beyond the prediction (0: unchanged room
+        light), over the watched pixels.
+    shifts_proj : (n_planes, 2) float64, (dx, dy) projector px by which the content seen on
+        each plane moved against the prediction (NaN where the plane had too few pixels).
+    confidence : (n_planes,) float64, phase correlation peak (0..1); small on plain content.
+    band_ratio : band-pass (DoG, σ = 1 and 2 projector px) RMS of the observation over that of
+        the prediction, on the watched pixels; it falls when the blur grows.
+    rms_before, rms_after : RMS of observed − predicted before, and after, the alignment and
+        the light fit (camera-linear light).
+    watched : number of projector pixels compared.
+    """
+
+    gain: float
+    ambient_added: float
+    shifts_proj: np.ndarray
+    confidence: np.ndarray
+    band_ratio: float
+    rms_before: float
+    rms_after: float
+    watched: int
+
+
+def default_margin(projector_size: tuple[int, int]) -> int:
+    """Projector px kept away from the frame's edge and the folds: 4 % of the smaller side,
+    at least 8."""
+    return max(8, int(0.04 * min(projector_size)))
+
+
+def _watch_runtime():
+    """The watcher's own OpenCL context and queue on the chosen device (created on first use)."""
+    global _runtime
+    from ..cl.runtime import ClRuntime, get_runtime
+    with _runtime_lock:
+        if _runtime is None:
+            _runtime = ClRuntime(get_runtime().device)
+        return _runtime
+
+
+def resolve_backend(backend: str) -> str:
+    """"opencl" or "numpy" for a requested backend; "auto" falls back to NumPy with one warning
+    per process when no OpenCL device is usable, "opencl" then raises DeviceError."""
+    global _warned_no_opencl
+    if backend not in BACKENDS:
+        raise InputError(f"backend must be one of {BACKENDS}; got {backend!r}")
+    if backend == "numpy":
+        return "numpy"
+    from ..cl import runtime as cl_runtime
+    ok, why = cl_runtime.opencl_available()
+    if ok:
+        return "opencl"
+    if backend == "opencl":
+        raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
+    if not _warned_no_opencl:
+        log.warning("no OpenCL device; the watcher predicts the camera view with the (slow) "
+                    "NumPy backend: %s", why)
+        _warned_no_opencl = True
+    return "numpy"
+
+
+def _check_frame(calib: Calibration, frame) -> np.ndarray:
+    wp, hp = calib.projector_size
+    frame = np.asarray(frame)
+    if frame.shape != (hp, wp, 3) or frame.dtype != np.uint8:
+        raise InputError(f"the shown frame must be ({hp}, {wp}, 3) uint8 (the projector's size); "
+                         f"got {frame.dtype} {frame.shape}")
+    return frame
+
+
+def _check_capture(calib: Calibration, capture) -> np.ndarray:
+    wc, hc = calib.camera_size
+    capture = np.asarray(capture)
+    if capture.shape != (hc, wc, 3):
+        raise InputError(f"the capture must be ({hc}, {wc}, 3) (the calibration's camera size); "
+                         f"got {capture.shape}")
+    return capture
+
+
+class ResidualPredictor:
+    """The calibration's forward model and residual report, prepared once per calibration.
+
+    Parameters
+    ----------
+    calib : Calibration with geometry (radiometry, kernels and ``camera_lut`` when present).
+        The predictor keeps what it needs at construction: a calibration changed afterwards
+        needs a new predictor (:func:`~.residual.residual_report` builds one when it sees a
+        change).
+    backend : "auto" | "opencl" | "numpy"
+        Where the forward blur runs; "auto" takes the OpenCL device when there is one.
+    margin : projector px kept away from the frame's edge and the folds (None:
+        :func:`default_margin`).
+    runtime : rtdefocus.cl.ClRuntime, optional
+        The OpenCL context and queue to use (default: the watcher's own, on the chosen device).
+
+    Attributes
+    ----------
+    backend : "opencl" | "numpy" (resolved)
+    margin : int
+    """
+
+    def __init__(self, calib: Calibration, backend: str = "auto", margin: int | None = None,
+                 runtime=None):
+        self.calib = calib
+        self.backend = resolve_backend(backend)
+        wp, hp = calib.projector_size
+        self.margin = default_margin(calib.projector_size) if margin is None else int(margin)
+        if self.margin < 1:
+            raise InputError(f"margin must be at least 1 projector px; got {margin}")
+        self._lock = threading.Lock()
+        self._lut = np.ascontiguousarray(calib.lut, np.float32)
+        cam = calib.camera_lut
+        # uint8 captures read the inverse response by table (np.interp at whole codes is the
+        # table itself); other captures (averaged frames) go through linearize.
+        self._cam_table = (None if cam is None or np.isscalar(cam) else
+                           np.ascontiguousarray(np.asarray(cam, np.float32).T[None]))
+        self._maps = projector_to_camera_maps(calib)
+        wc, hc = calib.camera_size
+        mx, my = self._maps
+        seen = (mx >= 0) & (mx <= wc - 1) & (my >= 0) & (my <= hc - 1)
+        self.seen = seen
+        masks = watched_planes(calib.plane_map(), calib.n_planes, seen, self.margin)
+        self.masks = masks
+        self.windows = [PlaneWindow.of(m) if m.any() else None for m in masks]
+        self.watched = np.any(masks, axis=0) if masks else np.zeros((hp, wp), bool)
+        self._albedo = (None if calib.albedo_proj is None
+                        else np.ascontiguousarray(calib.albedo_proj, np.float32))
+        self._ambient = (None if calib.ambient_proj is None
+                         else np.ascontiguousarray(calib.ambient_proj, np.float32))
+        self._inv_albedo = (None if self._albedo is None
+                            else 1.0 / np.maximum(self._albedo, np.float32(1e-3)))
+        if self._ambient is not None and self.watched.any() and \
+                float(self._ambient[self.watched].mean()) > 1e-6:
+            shape = self._ambient.mean(axis=2)
+            self._shape = shape / shape[self.watched].mean()
+        else:
+            self._shape = np.ones((hp, wp), np.float32)
+        self._blur = None
+        if calib.has_psf:
+            if self.backend == "opencl":
+                self._setup_cl(runtime)
+            else:
+                self._wmaps = weight_maps(calib.pix_idx, calib.pix_wts)
+
+    def _setup_cl(self, runtime) -> None:
+        import pyopencl.array as cla
+
+        from ..cl.blur import ClBlur
+        rt = runtime if runtime is not None else _watch_runtime()
+        calib = self.calib
+        self._blur = ClBlur(rt, calib.psfs, calib.pix_idx, calib.pix_wts, channels=3)
+        self._queue = rt.queue
+        self._src = cla.empty(rt.queue, self._blur.shape, np.float32)
+        self._dst = cla.empty(rt.queue, self._blur.shape, np.float32)
+
+    # ------------------------------------------------------------------ forward model
+    def blurred(self, frame: np.ndarray) -> np.ndarray:
+        """``F P``: the frame in linear light, blurred by the calibrated kernels, (Hp, Wp, 3)
+        float32 (the identity blur without kernels)."""
+        lin = decode_lut(_check_frame(self.calib, frame), self._lut)         # (3, Hp, Wp)
+        if self._blur is not None:
+            with self._lock:
+                self._src.set(lin, queue=self._queue)
+                self._blur.forward(self._src, self._dst)
+                lin = self._dst.get(queue=self._queue)
+        elif self.calib.has_psf:
+            c = self.calib
+            lin = blur_forward_filter2d(lin, c.psfs, c.pix_idx, c.pix_wts, maps=self._wmaps)
+        return np.ascontiguousarray(lin.transpose(1, 2, 0))
+
+    def with_light(self, blurred: np.ndarray) -> np.ndarray:
+        """albedo · blurred + ambient, with what the calibration knows of them, (Hp, Wp, 3)."""
+        out = blurred * self._albedo if self._albedo is not None else blurred.copy()
+        if self._ambient is not None:
+            out += self._ambient
+        return out
+
+    def predict(self, frame: np.ndarray) -> np.ndarray:
+        """The camera's linear light expected at each projector pixel, (Hp, Wp, 3) float32."""
+        return self.with_light(self.blurred(frame))
+
+    def observe(self, capture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A camera frame as linear light at each projector pixel (0 where unseen), (Hp, Wp, 3)
+        float32, and where the camera sees it, (Hp, Wp) bool."""
+        capture = _check_capture(self.calib, capture)
+        if capture.dtype == np.uint8 and self._cam_table is not None:
+            lin = cv2.LUT(np.ascontiguousarray(capture), self._cam_table)
+        else:
+            lin = linearize(capture, self.calib.camera_lut)
+        out = cv2.remap(np.ascontiguousarray(lin, dtype=np.float32), *self._maps,
+                        interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=0)
+        return out, self.seen
+
+    # ------------------------------------------------------------------ the report
+    def report(self, frame: np.ndarray, capture: np.ndarray,
+               min_pixels: int = 400) -> ResidualReport:
+        """Compare a capture with the prediction of it: light, geometry and focus (see
+        :func:`~.residual.residual_report`, whose parameters and result these are)."""
+        calib = self.calib
+        frame = _check_frame(calib, frame)
+        capture = _check_capture(calib, capture)
+        n = int(self.watched.sum())
+        if n < min_pixels:
+            raise InputError(f"the camera sees only {n} projector pixels of this calibration; "
+                             "check that the capture and the calibration belong to the same "
+                             "set-up")
+        blurred = self.blurred(frame)
+        pred = self.with_light(blurred)
+        obs, _ = self.observe(capture)
+        pred_g, obs_g = pred.mean(axis=2), obs.mean(axis=2)
+        # The content alone, as the projector put it on the wall.
+        content = obs
+        if self._ambient is not None:
+            content = content - self._ambient
+        if self._inv_albedo is not None:
+            content = content * self._inv_albedo
+        content_g, blurred_g = content.mean(axis=2), blurred.mean(axis=2)
+        shifts = np.full((calib.n_planes, 2), np.nan)
+        conf = np.zeros(calib.n_planes)
+        aligned = pred_g.copy()
+        for p, win in enumerate(self.windows):
+            if win is None or int(win.mask.sum()) < min_pixels:
+                continue
+            shifts[p], conf[p] = plane_shift(blurred_g, content_g, win)
+            # The prediction with the content moved as it did, for the light fit.
+            self._moved_into(aligned, blurred, shifts[p], win)
+        w = self.watched
+        A = np.stack([aligned[w], self._shape[w]], axis=1).astype(np.float64)
+        y = obs_g[w].astype(np.float64)
+        (gain, added), *_ = np.linalg.lstsq(A, y, rcond=None)
+        rms_before = float(np.sqrt(np.mean((y - pred_g[w]) ** 2)))
+        rms_after = float(np.sqrt(np.mean((y - A @ [gain, added]) ** 2)))
+        return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
+                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, w),
+                              rms_before=rms_before, rms_after=rms_after, watched=n)
+
+    def _moved_into(self, aligned: np.ndarray, blurred: np.ndarray, d: np.ndarray,
+                    win: PlaneWindow) -> None:
+        """Write the grey prediction of ``blurred`` moved by ``d`` into ``aligned`` on the
+        plane's watched pixels. Only the plane's box, widened by the shift, is warped: the
+        same values as warping the whole frame (bilinear reads 2x2 neighbours; the frame's
+        own border is replicated either way)."""
+        hp, wp = aligned.shape
+        y0, y1, x0, x1 = win.box
+        pad = int(np.ceil(np.abs(d).max())) + 2
+        ya, yb, xa, xb = max(0, y0 - pad), min(hp, y1 + pad), max(0, x0 - pad), min(wp, x1 + pad)
+        M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+        moved = cv2.warpAffine(np.ascontiguousarray(blurred[ya:yb, xa:xb]), M, (xb - xa, yb - ya),
+                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        inner = (slice(y0 - ya, y1 - ya), slice(x0 - xa, x1 - xa))
+        moved = moved[inner]
+        if self._albedo is not None:
+            moved = moved * self._albedo[y0:y1, x0:x1]
+        if self._ambient is not None:
+            moved = moved + self._ambient[y0:y1, x0:x1]
+        box = aligned[y0:y1, x0:x1]
+        box[win.mask] = moved.mean(axis=2)[win.mask]
