@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["PlaneWindow", "band_ratio", "coarse_shift", "plane_shift", "watched_planes"]
+__all__ = ["PlaneWindow", "band_ratio", "coarse_shift", "downsample_mask", "plane_shift",
+           "watched_planes"]
 
 
 def watched_planes(plane: np.ndarray, n_planes: int, seen: np.ndarray,
@@ -50,11 +51,13 @@ class PlaneWindow:
     ----------
     box : (y0, y1, x0, x1), exclusive ends, in projector pixels.
     mask : (y1 - y0, x1 - x0) bool, the watched pixels inside the box.
-    window : same shape, float64, a Hann window times the mask.
+    flat : int64, the mask's flat indices in the box (gathers are cheaper than boolean masks).
+    window : same shape as ``mask``, float64, a Hann window times the mask.
     """
 
     box: tuple[int, int, int, int]
     mask: np.ndarray
+    flat: np.ndarray
     window: np.ndarray
 
     @classmethod
@@ -63,7 +66,13 @@ class PlaneWindow:
         ys, xs = np.nonzero(mask)
         y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
         m = np.ascontiguousarray(mask[y0:y1, x0:x1])
-        return cls((y0, y1, x0, x1), m, np.outer(np.hanning(y1 - y0), np.hanning(x1 - x0)) * m)
+        return cls((y0, y1, x0, x1), m, np.flatnonzero(m),
+                   np.outer(np.hanning(y1 - y0), np.hanning(x1 - x0)) * m)
+
+    @property
+    def size(self) -> int:
+        """Number of watched pixels."""
+        return int(self.flat.size)
 
     def cut(self, img: np.ndarray) -> np.ndarray:
         """The box of an (Hp, Wp[, C]) image (a view)."""
@@ -91,24 +100,36 @@ def coarse_shift(a: np.ndarray, b: np.ndarray, m: np.ndarray,
     return d, float(corr[py, px])
 
 
-def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow,
-                iterations: int = 6) -> tuple[np.ndarray, float]:
+def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow, iterations: int = 6,
+                start: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(dx, dy) such that ``obs(x) ≈ gain · pred(x − d) + offset`` inside the plane's window
-    (grey (Hp, Wp) images), and the phase correlation peak of the whole-pixel start."""
-    m = win.mask
+    (grey (Hp, Wp) images), and the phase correlation peak of the whole-pixel start.
+
+    ``start``: a shift to refine instead of the phase correlation's (the peak is then NaN).
+    """
+    m, flat = win.mask, win.flat
     a = np.ascontiguousarray(win.cut(pred), np.float32)
     b_box = np.asarray(win.cut(obs), np.float64)
-    b = b_box[m]
-    d, peak = coarse_shift(a, b_box, m, win.window)
-    ones = np.ones(b.size)
-    # Gauss-Newton on the shift, gain and offset: pred(x − d − δ) ≈ W − ∇W · δ.
+    b = b_box.reshape(-1)[flat]
+    if start is None:
+        d, peak = coarse_shift(a, b_box, m, win.window)
+    else:
+        d, peak = np.array(start, np.float64), float("nan")
+    A = np.empty((4, flat.size))
+    A[1] = 1.0
+    # Gauss-Newton on the shift, gain and offset: pred(x − d − δ) ≈ W − ∇W · δ, solved by
+    # its 4 x 4 normal equations (well conditioned in float64; a QR of the n x 4 system costs
+    # as much as the rest of the report).
     for _ in range(iterations):
         M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
         W = cv2.warpAffine(a, M, (a.shape[1], a.shape[0]), flags=cv2.INTER_CUBIC,
                            borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
         gy, gx = np.gradient(W)
-        A = np.stack([W[m], ones, -gx[m], -gy[m]], axis=1)
-        (gain, _, u, v), *_ = np.linalg.lstsq(A, b, rcond=None)
+        A[0] = W.reshape(-1)[flat]
+        A[2] = gx.reshape(-1)[flat]
+        A[3] = gy.reshape(-1)[flat]
+        A[2:] *= -1.0
+        (gain, _, u, v), *_ = np.linalg.lstsq(A @ A.T, A @ b, rcond=None)
         if abs(gain) < 1e-6:
             break
         step = np.array([u, v]) / gain
@@ -116,6 +137,14 @@ def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow,
         if np.abs(step).max() < 1e-3:
             break
     return d, peak
+
+
+def downsample_mask(mask: np.ndarray) -> np.ndarray:
+    """A bool mask at the next pyramid level (``cv2.pyrDown``'s grid: pixel i at 2i): the
+    pixels whose 3x3 neighbourhood at the finer level is all in the mask."""
+    inside = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return inside[::2, ::2].astype(bool)
 
 
 def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:

@@ -27,7 +27,7 @@ from ..calib.radiometry.stage import projector_to_camera_maps
 from ..errors import DeviceError, InputError
 from ..reference.blur import blur_forward_filter2d, weight_maps
 from ..reference.lut import decode_lut
-from .align import PlaneWindow, band_ratio, plane_shift, watched_planes
+from .align import PlaneWindow, band_ratio, coarse_shift, downsample_mask, plane_shift, watched_planes
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +139,13 @@ class ResidualPredictor:
         :func:`default_margin`).
     runtime : rtdefocus.cl.ClRuntime, optional
         The OpenCL context and queue to use (default: the watcher's own, on the chosen device).
+    level : int >= 0
+        Pyramid level (``cv2.pyrDown`` steps) where each plane's shift is found: by phase
+        correlation and Gauss-Newton there, then ``refine`` Gauss-Newton steps at full
+        resolution. The content on the wall is blurred, so a coarser level loses little of it
+        and costs a quarter per level (``tools/bench_watch.py`` compares the shifts).
+    refine : int >= 0
+        Full-resolution Gauss-Newton steps after the pyramid level (0: the level's shift).
 
     Attributes
     ----------
@@ -147,7 +154,7 @@ class ResidualPredictor:
     """
 
     def __init__(self, calib: Calibration, backend: str = "auto", margin: int | None = None,
-                 runtime=None):
+                 runtime=None, level: int = 1, refine: int = 1):
         self.calib = calib
         self.backend = resolve_backend(backend)
         wp, hp = calib.projector_size
@@ -169,6 +176,15 @@ class ResidualPredictor:
         masks = watched_planes(calib.plane_map(), calib.n_planes, seen, self.margin)
         self.masks = masks
         self.windows = [PlaneWindow.of(m) if m.any() else None for m in masks]
+        self.level, self.refine = int(level), int(refine)
+        if self.level < 0 or self.refine < 0:
+            raise InputError(f"level and refine must be >= 0; got {level} and {refine}")
+        coarse = []
+        for m in masks:
+            for _ in range(self.level):
+                m = downsample_mask(m)
+            coarse.append(PlaneWindow.of(m) if m.sum() >= 16 else None)
+        self.coarse_windows = coarse
         self.watched = np.any(masks, axis=0) if masks else np.zeros((hp, wp), bool)
         self._albedo = (None if calib.albedo_proj is None
                         else np.ascontiguousarray(calib.albedo_proj, np.float32))
@@ -176,6 +192,18 @@ class ResidualPredictor:
                          else np.ascontiguousarray(calib.ambient_proj, np.float32))
         self._inv_albedo = (None if self._albedo is None
                             else 1.0 / np.maximum(self._albedo, np.float32(1e-3)))
+        self._wflat = np.flatnonzero(self.watched)
+        # Planar thirds of the light maps: the report works on grey (channel-mean) images.
+        third = np.float32(1.0 / 3.0)
+        self._alb3 = (None if self._albedo is None
+                      else np.ascontiguousarray(self._albedo.transpose(2, 0, 1)) * third)
+        self._ia3 = (None if self._inv_albedo is None
+                     else np.ascontiguousarray(self._inv_albedo.transpose(2, 0, 1)) * third)
+        self._amb_g = None if self._ambient is None else self._ambient.mean(axis=2)
+        # the ambient as it reads in the content (ambient / albedo, grey)
+        self._amb_content_g = (None if self._ambient is None else
+                               (self._ambient * (1.0 if self._inv_albedo is None
+                                                 else self._inv_albedo)).mean(axis=2))
         if self._ambient is not None and self.watched.any() and \
                 float(self._ambient[self.watched].mean()) > 1e-6:
             shape = self._ambient.mean(axis=2)
@@ -201,9 +229,9 @@ class ResidualPredictor:
         self._dst = cla.empty(rt.queue, self._blur.shape, np.float32)
 
     # ------------------------------------------------------------------ forward model
-    def blurred(self, frame: np.ndarray) -> np.ndarray:
-        """``F P``: the frame in linear light, blurred by the calibrated kernels, (Hp, Wp, 3)
-        float32 (the identity blur without kernels)."""
+    def blurred_planar(self, frame: np.ndarray) -> np.ndarray:
+        """``F P``: the frame in linear light, blurred by the calibrated kernels, planar
+        (3, Hp, Wp) float32 (the identity blur without kernels)."""
         lin = decode_lut(_check_frame(self.calib, frame), self._lut)         # (3, Hp, Wp)
         if self._blur is not None:
             with self._lock:
@@ -213,7 +241,11 @@ class ResidualPredictor:
         elif self.calib.has_psf:
             c = self.calib
             lin = blur_forward_filter2d(lin, c.psfs, c.pix_idx, c.pix_wts, maps=self._wmaps)
-        return np.ascontiguousarray(lin.transpose(1, 2, 0))
+        return lin
+
+    def blurred(self, frame: np.ndarray) -> np.ndarray:
+        """:meth:`blurred_planar` as an (Hp, Wp, 3) float32 image."""
+        return np.ascontiguousarray(self.blurred_planar(frame).transpose(1, 2, 0))
 
     def with_light(self, blurred: np.ndarray) -> np.ndarray:
         """albedo · blurred + ambient, with what the calibration knows of them, (Hp, Wp, 3)."""
@@ -252,40 +284,76 @@ class ResidualPredictor:
             raise InputError(f"the camera sees only {n} projector pixels of this calibration; "
                              "check that the capture and the calibration belong to the same "
                              "set-up")
-        blurred = self.blurred(frame)
-        pred = self.with_light(blurred)
+        blurred = self.blurred_planar(frame)                                # (3, Hp, Wp)
+        blurred_g = (blurred[0] + blurred[1] + blurred[2]) * np.float32(1.0 / 3.0)
+        pred_g = self._light_g(blurred, blurred_g)
         obs, _ = self.observe(capture)
-        pred_g, obs_g = pred.mean(axis=2), obs.mean(axis=2)
-        # The content alone, as the projector put it on the wall.
-        content = obs
-        if self._ambient is not None:
-            content = content - self._ambient
-        if self._inv_albedo is not None:
-            content = content * self._inv_albedo
-        content_g, blurred_g = content.mean(axis=2), blurred.mean(axis=2)
+        o = cv2.split(obs)
+        obs_g = (o[0] + o[1] + o[2]) * np.float32(1.0 / 3.0)
+        # The content alone, as the projector put it on the wall: room light off, / albedo.
+        if self._ia3 is not None:
+            content_g = o[0] * self._ia3[0] + o[1] * self._ia3[1] + o[2] * self._ia3[2]
+        else:
+            content_g = obs_g.copy()
+        if self._amb_content_g is not None:
+            content_g -= self._amb_content_g
         shifts = np.full((calib.n_planes, 2), np.nan)
         conf = np.zeros(calib.n_planes)
         aligned = pred_g.copy()
+        pyr = [(blurred_g, content_g)]
+        for _ in range(self.level):
+            pyr.append((cv2.pyrDown(pyr[-1][0]), cv2.pyrDown(pyr[-1][1])))
         for p, win in enumerate(self.windows):
-            if win is None or int(win.mask.sum()) < min_pixels:
+            if win is None or win.size < min_pixels:
                 continue
-            shifts[p], conf[p] = plane_shift(blurred_g, content_g, win)
+            shifts[p], conf[p] = self._shift(pyr, win, self.coarse_windows[p])
             # The prediction with the content moved as it did, for the light fit.
             self._moved_into(aligned, blurred, shifts[p], win)
-        w = self.watched
-        A = np.stack([aligned[w], self._shape[w]], axis=1).astype(np.float64)
-        y = obs_g[w].astype(np.float64)
-        (gain, added), *_ = np.linalg.lstsq(A, y, rcond=None)
-        rms_before = float(np.sqrt(np.mean((y - pred_g[w]) ** 2)))
-        rms_after = float(np.sqrt(np.mean((y - A @ [gain, added]) ** 2)))
+        w = self._wflat
+        A = np.stack([aligned.reshape(-1)[w], self._shape.reshape(-1)[w]]).astype(np.float64)
+        y = obs_g.reshape(-1)[w].astype(np.float64)
+        (gain, added), *_ = np.linalg.lstsq(A @ A.T, A @ y, rcond=None)
+        before = y - pred_g.reshape(-1)[w]
+        after = y - gain * A[0] - added * A[1]
         return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
-                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, w),
-                              rms_before=rms_before, rms_after=rms_after, watched=n)
+                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, self.watched),
+                              rms_before=float(np.sqrt(before @ before / before.size)),
+                              rms_after=float(np.sqrt(after @ after / after.size)), watched=n)
+
+    def _shift(self, pyr: list, win: PlaneWindow, coarse: PlaneWindow | None
+               ) -> tuple[np.ndarray, float]:
+        """A plane's shift: the whole-pixel start and its peak by phase correlation at full
+        resolution (the peak is the watcher's confidence, so it is read where the content
+        is), Gauss-Newton at the pyramid level, then ``refine`` steps at full resolution."""
+        fine_pred, fine_obs = pyr[0]
+        if coarse is None or self.level == 0:
+            return plane_shift(fine_pred, fine_obs, win)
+        start, peak = coarse_shift(win.cut(fine_pred), np.asarray(win.cut(fine_obs), np.float64),
+                                   win.mask, win.window)
+        scale = 2.0 ** self.level
+        d, _ = plane_shift(pyr[-1][0], pyr[-1][1], coarse, start=start / scale)
+        d *= scale
+        if self.refine:
+            d, _ = plane_shift(fine_pred, fine_obs, win, iterations=self.refine, start=d)
+        return d, peak
+
+    def _light_g(self, blurred: np.ndarray, blurred_g: np.ndarray,
+                 box: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
+        """Grey albedo · blurred + ambient of planar ``blurred`` (``blurred_g`` its grey),
+        both cut to ``box`` (rows, columns) of the frame."""
+        if self._alb3 is not None:
+            a = self._alb3[(slice(None), *box)]
+            out = blurred[0] * a[0] + blurred[1] * a[1] + blurred[2] * a[2]
+        else:
+            out = blurred_g.copy()
+        if self._amb_g is not None:
+            out += self._amb_g[box]
+        return out
 
     def _moved_into(self, aligned: np.ndarray, blurred: np.ndarray, d: np.ndarray,
                     win: PlaneWindow) -> None:
-        """Write the grey prediction of ``blurred`` moved by ``d`` into ``aligned`` on the
-        plane's watched pixels. Only the plane's box, widened by the shift, is warped: the
+        """Write the grey prediction of planar ``blurred`` moved by ``d`` into ``aligned`` on
+        the plane's watched pixels. Only the plane's box, widened by the shift, is warped: the
         same values as warping the whole frame (bilinear reads 2x2 neighbours; the frame's
         own border is replicated either way)."""
         hp, wp = aligned.shape
@@ -293,13 +361,11 @@ class ResidualPredictor:
         pad = int(np.ceil(np.abs(d).max())) + 2
         ya, yb, xa, xb = max(0, y0 - pad), min(hp, y1 + pad), max(0, x0 - pad), min(wp, x1 + pad)
         M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
-        moved = cv2.warpAffine(np.ascontiguousarray(blurred[ya:yb, xa:xb]), M, (xb - xa, yb - ya),
-                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         inner = (slice(y0 - ya, y1 - ya), slice(x0 - xa, x1 - xa))
-        moved = moved[inner]
-        if self._albedo is not None:
-            moved = moved * self._albedo[y0:y1, x0:x1]
-        if self._ambient is not None:
-            moved = moved + self._ambient[y0:y1, x0:x1]
+        moved = np.stack([
+            cv2.warpAffine(np.ascontiguousarray(blurred[c, ya:yb, xa:xb]), M, (xb - xa, yb - ya),
+                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[inner]
+            for c in range(3)])
+        moved_g = self._light_g(moved, moved.mean(axis=0), (slice(y0, y1), slice(x0, x1)))
         box = aligned[y0:y1, x0:x1]
-        box[win.mask] = moved.mean(axis=2)[win.mask]
+        box[win.mask] = moved_g[win.mask]
