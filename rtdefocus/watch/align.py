@@ -148,10 +148,15 @@ def downsample_mask(mask: np.ndarray) -> np.ndarray:
 
 
 def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
-    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``."""
-    def band(x):
-        x = np.asarray(x, np.float32)
-        return cv2.GaussianBlur(x, (0, 0), 1.0) - cv2.GaussianBlur(x, (0, 0), 2.0)
+    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``,
+    on the pixels of ``mask`` (a bool image, or the flat indices of its pixels)."""
+    flat = np.flatnonzero(mask) if mask.dtype == bool else mask
 
-    e_pred = float(np.mean(band(pred)[mask] ** 2))
-    return float(np.sqrt(np.mean(band(obs)[mask] ** 2) / e_pred)) if e_pred > 0 else float("nan")
+    def energy(x):
+        x = np.asarray(x, np.float32)
+        b = (cv2.GaussianBlur(x, (0, 0), 1.0) - cv2.GaussianBlur(x, (0, 0), 2.0)).reshape(-1)[flat]
+        b = b.astype(np.float64)
+        return float(b @ b) / max(b.size, 1)
+
+    e_pred = energy(pred)
+    return float(np.sqrt(energy(obs) / e_pred)) if e_pred > 0 else float("nan")

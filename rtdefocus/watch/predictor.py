@@ -283,20 +283,26 @@ class ResidualPredictor:
         calib = self.calib
         frame = _check_frame(calib, frame)
         capture = _check_capture(calib, capture)
-        n = int(self.watched.sum())
+        n = int(self._wflat.size)
         if n < min_pixels:
             raise InputError(f"the camera sees only {n} projector pixels of this calibration; "
                              "check that the capture and the calibration belong to the same "
                              "set-up")
         blurred = self.blurred_planar(frame)                                # (3, Hp, Wp)
-        blurred_g = (blurred[0] + blurred[1] + blurred[2]) * np.float32(1.0 / 3.0)
+        blurred_g = blurred[0] + blurred[1]
+        blurred_g += blurred[2]
+        blurred_g *= np.float32(1.0 / 3.0)
         pred_g = self._light_g(blurred, blurred_g)
         obs, _ = self.observe(capture)
         o = cv2.split(obs)
-        obs_g = (o[0] + o[1] + o[2]) * np.float32(1.0 / 3.0)
+        obs_g = o[0] + o[1]
+        obs_g += o[2]
+        obs_g *= np.float32(1.0 / 3.0)
         # The content alone, as the projector put it on the wall: room light off, / albedo.
         if self._ia3 is not None:
-            content_g = o[0] * self._ia3[0] + o[1] * self._ia3[1] + o[2] * self._ia3[2]
+            content_g = o[0] * self._ia3[0]
+            for c in (1, 2):
+                content_g += o[c] * self._ia3[c]
         else:
             content_g = obs_g.copy()
         if self._amb_content_g is not None:
@@ -320,7 +326,7 @@ class ResidualPredictor:
         before = y - pred_g.reshape(-1)[w]
         after = y - gain * A[0] - added * A[1]
         return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
-                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, self.watched),
+                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, w),
                               rms_before=float(np.sqrt(before @ before / before.size)),
                               rms_after=float(np.sqrt(after @ after / after.size)), watched=n)
 
@@ -347,7 +353,9 @@ class ResidualPredictor:
         both cut to ``box`` (rows, columns) of the frame."""
         if self._alb3 is not None:
             a = self._alb3[(slice(None), *box)]
-            out = blurred[0] * a[0] + blurred[1] * a[1] + blurred[2] * a[2]
+            out = blurred[0] * a[0]
+            for c in (1, 2):
+                out += blurred[c] * a[c]
         else:
             out = blurred_g.copy()
         if self._amb_g is not None:
