@@ -129,5 +129,29 @@ def test_a_predictor_of_another_calibration_is_refused(calib_and_frame, captures
     other = sim.oracle_calibration(sim.VirtualProCam("webcam_cubicle", **SIZES))
     with pytest.raises(InputError, match="another calibration"):
         residual_report(other, frame, captures["unchanged"], predictor=numpy_predictor)
+    with pytest.raises(InputError, match="margin"):
+        residual_report(calib, frame, captures["unchanged"], margin=numpy_predictor.margin + 1,
+                        predictor=numpy_predictor)
     with pytest.raises(InputError, match="backend"):
         ResidualPredictor(calib, backend="cuda")
+
+
+def test_without_a_device_auto_falls_back_to_numpy_with_one_warning(calib_and_frame, captures,
+                                                                    numpy_predictor,
+                                                                    monkeypatch, caplog):
+    from rtdefocus.cl import runtime as cl_runtime
+    from rtdefocus.errors import DeviceError
+    from rtdefocus.watch import predictor as predictor_mod
+
+    calib, frame = calib_and_frame
+    monkeypatch.setattr(cl_runtime, "opencl_available", lambda: (False, "no platform"))
+    monkeypatch.setattr(predictor_mod, "_warned_no_opencl", False)
+    with caplog.at_level("WARNING", logger="rtdefocus.watch.predictor"):
+        first = ResidualPredictor(calib)
+        second = ResidualPredictor(calib)
+    assert first.backend == second.backend == "numpy"
+    assert sum("no OpenCL device" in r.getMessage() for r in caplog.records) == 1
+    r = first.report(frame, captures["light"])
+    np.testing.assert_allclose(fields(r), fields(numpy_predictor.report(frame, captures["light"])))
+    with pytest.raises(DeviceError, match="no platform"):
+        ResidualPredictor(calib, backend="opencl")

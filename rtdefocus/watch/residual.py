@@ -126,4 +126,7 @@ def residual_report(calib: Calibration, frame: np.ndarray, capture: np.ndarray,
     elif predictor.calib is not calib:
         raise InputError("the predictor was built for another calibration; build one with "
                          "ResidualPredictor(calib) or leave predictor=None")
+    elif margin is not None and int(margin) != predictor.margin:
+        raise InputError(f"margin={margin} differs from the predictor's {predictor.margin}; "
+                         "pass the margin to ResidualPredictor, or leave it out here")
     return predictor.report(frame, capture, min_pixels=min_pixels)
