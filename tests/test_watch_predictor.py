@@ -112,13 +112,23 @@ def test_residual_report_rebuilds_its_predictor_when_the_calibration_changes(
     CHANGES["light"](pc)
     mended = sim.oracle_calibration(pc)
     mended.camera_lut = calib.camera_lut
-    calib_ambient = calib.ambient_proj
+    calib_ambient, calib_h = calib.ambient_proj, calib.H_cam_from_proj
     try:
         calib.ambient_proj = mended.ambient_proj
-        assert predictor_for(calib) is not first
+        light_mended = predictor_for(calib)
         after = residual_report(calib, frame, cap)
+        # a light mend rebuilds the light maps only: the geometry and kernel parts are shared
+        assert light_mended is not first
+        assert light_mended._maps is first._maps and light_mended.windows is first.windows
+        assert light_mended._blur is first._blur and light_mended._lock is first._lock
+        calib.H_cam_from_proj = calib.H_cam_from_proj.copy()
+        calib.H_cam_from_proj[0, 0, 2] += 2.0              # the camera's view of plane 0 moved
+        moved = predictor_for(calib)
+        assert moved._maps is not first._maps and moved._blur is first._blur
+        assert not np.array_equal(moved._maps[0], first._maps[0])
     finally:
         calib.ambient_proj = calib_ambient
+        calib.H_cam_from_proj = calib_h
     assert before.ambient_added > 0.02
     assert abs(after.ambient_added) < 0.2 * before.ambient_added
 

@@ -30,7 +30,8 @@ from .align import PlaneWindow, band_ratio, coarse_shift, downsample_mask, plane
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BACKENDS", "ResidualPredictor", "ResidualReport", "default_margin"]
+__all__ = ["BACKENDS", "ResidualPredictor", "ResidualReport", "calibration_keys",
+           "default_margin"]
 
 BACKENDS = ("auto", "opencl", "numpy")
 
@@ -72,6 +73,33 @@ def default_margin(projector_size: tuple[int, int]) -> int:
     """Projector px kept away from the frame's edge and the folds: 4 % of the smaller side,
     at least 8."""
     return max(8, int(0.04 * min(projector_size)))
+
+
+# Fields a predictor reads, by the part they build. Small ones are compared by value; per-pixel
+# maps by identity and a strided sample of their values (a map replaced or changed in place
+# both show).
+_KEY_FIELDS = (
+    ("H_cam_from_proj", "folds_proj", "fold_planes", "camera_distortion", "residual_cam"),
+    ("psfs", "pix_idx", "pix_wts"),
+    ("response_lut", "camera_lut", "albedo_proj", "ambient_proj"),
+)
+
+
+def _value_key(a) -> tuple | None:
+    if a is None:
+        return None
+    a = np.asarray(a)
+    if a.size <= 1 << 16:
+        return a.shape, a.dtype.str, a.tobytes()
+    return id(a), a.shape, a.dtype.str, a.reshape(-1)[::997].tobytes()
+
+
+def calibration_keys(calib: Calibration) -> tuple[tuple, tuple, tuple]:
+    """Keys of what a predictor reads from ``calib``: (geometry, kernel field, light). Equal
+    keys mean the part built from them can be reused (:class:`ResidualPredictor` ``reuse``)."""
+    sizes = (tuple(calib.projector_size), tuple(calib.camera_size))
+    return tuple((sizes, *(_value_key(getattr(calib, f)) for f in names))
+                 for names in _KEY_FIELDS)
 
 
 def _watch_runtime():
@@ -145,39 +173,63 @@ class ResidualPredictor:
         and costs a quarter per level (``tools/bench_watch.py`` compares the shifts).
     refine : int >= 0
         Full-resolution Gauss-Newton steps after the pyramid level (0: the level's shift).
+    reuse : ResidualPredictor, optional
+        A predictor of an earlier state of the calibration: its geometry part (maps, watched
+        pixels) and its kernel field (on the device) are taken over where the calibration's
+        keys say they are unchanged, so a mend of the light alone rebuilds only the light maps.
 
     Attributes
     ----------
     backend : "opencl" | "numpy" (resolved)
     margin : int
+    keys : the calibration's :func:`calibration_keys` when the predictor was built.
     """
 
     def __init__(self, calib: Calibration, backend: str = "auto", margin: int | None = None,
-                 runtime=None, level: int = 1, refine: int = 1):
+                 runtime=None, level: int = 1, refine: int = 1,
+                 reuse: ResidualPredictor | None = None):
         self.calib = calib
         self.backend = resolve_backend(backend)
-        wp, hp = calib.projector_size
         self.margin = default_margin(calib.projector_size) if margin is None else int(margin)
         if self.margin < 1:
             raise InputError(f"margin must be at least 1 projector px; got {margin}")
-        self._lock = threading.Lock()
-        self._lut = np.ascontiguousarray(calib.lut, np.float32)
-        cam = calib.camera_lut
-        # uint8 captures read the inverse response by table (np.interp at whole codes is the
-        # table itself); other captures (averaged frames) go through linearize.
-        self._cam_table = (None if cam is None or np.isscalar(cam) else
-                           np.ascontiguousarray(np.asarray(cam, np.float32).T[None]))
-        self._maps = projector_to_camera_maps(calib)
-        wc, hc = calib.camera_size
-        mx, my = self._maps
-        seen = (mx >= 0) & (mx <= wc - 1) & (my >= 0) & (my <= hc - 1)
-        self.seen = seen
-        masks = watched_planes(calib.plane_map(), calib.n_planes, seen, self.margin)
-        self.masks = masks
-        self.windows = [PlaneWindow.of(m) if m.any() else None for m in masks]
         self.level, self.refine = int(level), int(refine)
         if self.level < 0 or self.refine < 0:
             raise InputError(f"level and refine must be >= 0; got {level} and {refine}")
+        self.keys = calibration_keys(calib)
+        same = [reuse is not None and reuse.keys[i] == self.keys[i] for i in range(2)]
+        if same[0] and (reuse.margin, reuse.level) == (self.margin, self.level):
+            for name in self._GEOMETRY:
+                setattr(self, name, getattr(reuse, name))
+        else:
+            self._setup_geometry(calib)
+        self._lock = threading.Lock()
+        self._blur = None
+        if same[1] and reuse.backend == self.backend and runtime is None:
+            # the kernel field (on the device) and its buffers, with the lock that guards them
+            for name in ("_blur", "_wmaps", "_queue", "_src", "_dst", "_lock"):
+                if hasattr(reuse, name):
+                    setattr(self, name, getattr(reuse, name))
+        elif calib.has_psf:
+            if self.backend == "opencl":
+                self._setup_cl(runtime)
+            else:
+                self._wmaps = weight_maps(calib.pix_idx, calib.pix_wts)
+        self._setup_light(calib)
+
+    #: What :meth:`_setup_geometry` computes (kept by a predictor that ``reuse``s it).
+    _GEOMETRY = ("_maps", "seen", "masks", "windows", "coarse_windows", "watched", "_wflat")
+
+    def _setup_geometry(self, calib: Calibration) -> None:
+        """Camera→projector maps, what the camera sees, the watched pixels and windows."""
+        wp, hp = calib.projector_size
+        self._maps = projector_to_camera_maps(calib)
+        wc, hc = calib.camera_size
+        mx, my = self._maps
+        self.seen = (mx >= 0) & (mx <= wc - 1) & (my >= 0) & (my <= hc - 1)
+        masks = watched_planes(calib.plane_map(), calib.n_planes, self.seen, self.margin)
+        self.masks = masks
+        self.windows = [PlaneWindow.of(m) if m.any() else None for m in masks]
         coarse = []
         for m in masks:
             for _ in range(self.level):
@@ -185,13 +237,23 @@ class ResidualPredictor:
             coarse.append(PlaneWindow.of(m) if m.sum() >= 16 else None)
         self.coarse_windows = coarse
         self.watched = np.any(masks, axis=0) if masks else np.zeros((hp, wp), bool)
+        self._wflat = np.flatnonzero(self.watched)
+
+    def _setup_light(self, calib: Calibration) -> None:
+        """Response tables, albedo and ambient maps as the report uses them."""
+        wp, hp = calib.projector_size
+        self._lut = np.ascontiguousarray(calib.lut, np.float32)
+        cam = calib.camera_lut
+        # uint8 captures read the inverse response by table (np.interp at whole codes is the
+        # table itself); other captures (averaged frames) go through linearize.
+        self._cam_table = (None if cam is None or np.isscalar(cam) else
+                           np.ascontiguousarray(np.asarray(cam, np.float32).T[None]))
         self._albedo = (None if calib.albedo_proj is None
                         else np.ascontiguousarray(calib.albedo_proj, np.float32))
         self._ambient = (None if calib.ambient_proj is None
                          else np.ascontiguousarray(calib.ambient_proj, np.float32))
         self._inv_albedo = (None if self._albedo is None
                             else 1.0 / np.maximum(self._albedo, np.float32(1e-3)))
-        self._wflat = np.flatnonzero(self.watched)
         # Planar thirds of the light maps: the report works on grey (channel-mean) images.
         third = np.float32(1.0 / 3.0)
         self._alb3 = (None if self._albedo is None
@@ -210,12 +272,6 @@ class ResidualPredictor:
         else:
             self._shape = np.ones((hp, wp), np.float32)
         self._shape_w = self._shape.reshape(-1)[self._wflat].astype(np.float64)
-        self._blur = None
-        if calib.has_psf:
-            if self.backend == "opencl":
-                self._setup_cl(runtime)
-            else:
-                self._wmaps = weight_maps(calib.pix_idx, calib.pix_wts)
 
     def _setup_cl(self, runtime) -> None:
         import pyopencl.array as cla

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..calib.file import Calibration
 from ..errors import InputError
-from .predictor import ResidualPredictor, ResidualReport
+from .predictor import ResidualPredictor, ResidualReport, calibration_keys
 
 __all__ = ["ResidualReport", "observe_proj", "predict_proj", "predictor_for", "residual_report"]
 
@@ -37,35 +37,19 @@ _CACHE_SIZE = 2
 _cache: list[tuple[tuple, ResidualPredictor]] = []
 _cache_lock = threading.Lock()
 
-# Fields read once by a predictor. Small ones are compared by value; per-pixel maps by
-# identity and a strided sample of their values (a map replaced or changed in place both show).
-_SMALL = ("H_cam_from_proj", "folds_proj", "fold_planes", "response_lut", "camera_lut",
-          "camera_distortion", "residual_cam", "psfs")
-_LARGE = ("albedo_proj", "ambient_proj", "pix_idx", "pix_wts")
-
-
-def _fingerprint(calib: Calibration) -> tuple:
-    key: list = [id(calib), tuple(calib.projector_size), tuple(calib.camera_size)]
-    for name in _SMALL:
-        a = getattr(calib, name)
-        key.append(None if a is None else (np.shape(a), np.asarray(a).tobytes()))
-    for name in _LARGE:
-        a = getattr(calib, name)
-        key.append(None if a is None else
-                   (id(a), a.shape, np.asarray(a).reshape(-1)[::997].tobytes()))
-    return tuple(key)
-
 
 def predictor_for(calib: Calibration, margin: int | None = None,
                   backend: str = "auto") -> ResidualPredictor:
     """The cached :class:`ResidualPredictor` of ``calib`` (built on first use, and again when
-    the calibration's geometry, radiometry or kernels change)."""
-    key = (_fingerprint(calib), margin, backend)
+    the calibration's geometry, light or kernels change: only the changed part is rebuilt)."""
+    key = (id(calib), calibration_keys(calib), margin, backend)
     with _cache_lock:
         for k, pred in _cache:
             if k == key:
                 return pred
-    pred = ResidualPredictor(calib, backend=backend, margin=margin)
+        # the latest predictor of the same settings lends the parts that did not change
+        last = next((p for k, p in _cache if k[2:] == key[2:]), None)
+    pred = ResidualPredictor(calib, backend=backend, margin=margin, reuse=last)
     with _cache_lock:
         _cache.insert(0, (key, pred))
         del _cache[_CACHE_SIZE:]
