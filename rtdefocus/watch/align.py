@@ -154,9 +154,10 @@ def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
 
     def energy(x):
         x = np.asarray(x, np.float32)
-        b = (cv2.GaussianBlur(x, (0, 0), 1.0) - cv2.GaussianBlur(x, (0, 0), 2.0)).reshape(-1)[flat]
-        b = b.astype(np.float64)
-        return float(b @ b) / max(b.size, 1)
+        b = cv2.GaussianBlur(x, (0, 0), 1.0)
+        cv2.subtract(b, cv2.GaussianBlur(x, (0, 0), 2.0), dst=b)
+        b = b.reshape(-1).take(flat)
+        return float(np.dot(b, b)) / max(b.size, 1)
 
     e_pred = energy(pred)
     return float(np.sqrt(energy(obs) / e_pred)) if e_pred > 0 else float("nan")

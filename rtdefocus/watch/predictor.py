@@ -271,7 +271,8 @@ class ResidualPredictor:
             self._shape = shape / shape[self.watched].mean()
         else:
             self._shape = np.ones((hp, wp), np.float32)
-        self._shape_w = self._shape.reshape(-1)[self._wflat].astype(np.float64)
+        self._shape_w = self._shape.reshape(-1)[self._wflat].astype(np.float32)
+        self._shape_ss = float(np.dot(self._shape_w.astype(np.float64), self._shape_w))
 
     def _setup_cl(self, runtime) -> None:
         import pyopencl.array as cla
@@ -376,15 +377,18 @@ class ResidualPredictor:
             # The prediction with the content moved as it did, for the light fit.
             self._moved_into(aligned, blurred, shifts[p], win)
         w = self._wflat
-        A = np.stack([aligned.reshape(-1)[w].astype(np.float64), self._shape_w])
-        y = obs_g.reshape(-1)[w].astype(np.float64)
-        (gain, added), *_ = np.linalg.lstsq(A @ A.T, A @ y, rcond=None)
-        before = y - pred_g.reshape(-1)[w]
-        after = y - gain * A[0] - added * A[1]
+        a, y = aligned.reshape(-1).take(w), obs_g.reshape(-1).take(w)
+        sh = self._shape_w
+        # the 2 x 2 normal equations of y ≈ gain · a + added · shape, summed in float64
+        A = np.array([[np.dot(a, a), np.dot(a, sh)], [np.dot(a, sh), self._shape_ss]], np.float64)
+        (gain, added), *_ = np.linalg.lstsq(A, [np.dot(a, y), np.dot(sh, y)], rcond=None)
+        before = y - pred_g.reshape(-1).take(w)
+        after = y - np.float32(gain) * a - np.float32(added) * sh
         return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
                               confidence=conf, band_ratio=band_ratio(aligned, obs_g, w),
-                              rms_before=float(np.sqrt(before @ before / before.size)),
-                              rms_after=float(np.sqrt(after @ after / after.size)), watched=n)
+                              rms_before=float(np.sqrt(np.dot(before, before) / before.size)),
+                              rms_after=float(np.sqrt(np.dot(after, after) / after.size)),
+                              watched=n)
 
     def _shift(self, pyr: list, win: PlaneWindow, coarse: PlaneWindow | None
                ) -> tuple[np.ndarray, float]:
