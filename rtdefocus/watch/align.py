@@ -109,10 +109,10 @@ def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow, iterations:
     """
     m, flat = win.mask, win.flat
     a = np.ascontiguousarray(win.cut(pred), np.float32)
-    b_box = np.asarray(win.cut(obs), np.float64)
-    b = b_box.reshape(-1)[flat]
+    b_box = win.cut(obs)
+    b = np.ascontiguousarray(b_box).reshape(-1).take(flat).astype(np.float64)
     if start is None:
-        d, peak = coarse_shift(a, b_box, m, win.window)
+        d, peak = coarse_shift(a, np.asarray(b_box, np.float64), m, win.window)
     else:
         d, peak = np.array(start, np.float64), float("nan")
     A = np.empty((4, flat.size))
@@ -123,11 +123,11 @@ def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow, iterations:
     for _ in range(iterations):
         M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
         W = cv2.warpAffine(a, M, (a.shape[1], a.shape[0]), flags=cv2.INTER_CUBIC,
-                           borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+                           borderMode=cv2.BORDER_REPLICATE)
         gy, gx = np.gradient(W)
-        A[0] = W.reshape(-1)[flat]
-        A[2] = gx.reshape(-1)[flat]
-        A[3] = gy.reshape(-1)[flat]
+        A[0] = W.reshape(-1).take(flat)
+        A[2] = gx.reshape(-1).take(flat)
+        A[3] = gy.reshape(-1).take(flat)
         A[2:] *= -1.0
         (gain, _, u, v), *_ = np.linalg.lstsq(A @ A.T, A @ b, rcond=None)
         if abs(gain) < 1e-6:
