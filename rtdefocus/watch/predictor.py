@@ -8,8 +8,9 @@ or as the NumPy reference's weight maps. A report then costs one forward blur, o
 of the capture and the per-plane alignment. The maths is :mod:`~rtdefocus.watch.residual`'s;
 the alignment is :mod:`~rtdefocus.watch.align`.
 
-The device work runs on a queue of its own (a context the watcher shares with no one), so a
-report taken on a background thread never waits on, or holds up, the show's frames.
+The device work runs on a queue of its own (a context the watcher shares with no one): a
+report taken on a background thread never waits in the show's queue behind its frames, nor
+the show's frames behind it (on a CPU device the two still share the cores).
 """
 
 from __future__ import annotations
