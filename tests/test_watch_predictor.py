@@ -165,3 +165,22 @@ def test_without_a_device_auto_falls_back_to_numpy_with_one_warning(calib_and_fr
     np.testing.assert_allclose(fields(r), fields(numpy_predictor.report(frame, captures["light"])))
     with pytest.raises(DeviceError, match="no platform"):
         ResidualPredictor(calib, backend="opencl")
+
+
+def test_a_geometry_only_calibration_predicts_the_frame_itself(calib_and_frame, captures,
+                                                               numpy_predictor):
+    import dataclasses
+
+    calib, frame = calib_and_frame
+    bare = dataclasses.replace(calib, psfs=None, pix_idx=None, pix_wts=None, albedo_proj=None,
+                               ambient_proj=None, response_lut=None, psf_points_proj=None,
+                               psf_plane=None)
+    for backend in ("numpy", "auto"):
+        pred = ResidualPredictor(bare, backend=backend)
+        # no kernels, albedo 1, ambient 0, a linear projector: the frame as it is
+        np.testing.assert_allclose(pred.predict(frame), frame / np.float32(255), atol=1e-6)
+    # the content's move reads the same without the blur and the light maps
+    r = pred.report(frame, captures["projector-bump"])
+    full = numpy_predictor.report(frame, captures["projector-bump"])
+    assert np.abs(full.shifts_proj).max() > 2.0
+    np.testing.assert_allclose(r.shifts_proj, full.shifts_proj, atol=0.3)
