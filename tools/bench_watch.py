@@ -1,26 +1,48 @@
 """What the residual report reads after each change of the virtual set-up, and what it costs.
 
-At 800x600 (camera 1280x960), per preset: a fresh set-up with its oracle calibration (the
-camera's true response added), smooth aperiodic content (Gaussian-smoothed noise, σ 3 px);
-one change per row, on a fresh set-up each, against the unchanged calibration. "true" is the
-content's mean motion per plane from the simulator's ground truth. The cost is the median of
-three calls of `residual_report` (NumPy, host), and each change's own rebuild time.
+Two tables, at 800x600 (camera 1280x960):
 
-    python tools/bench_watch.py [preset ...]
+``accuracy`` (per preset): a fresh set-up with its oracle calibration (the camera's true
+response added), smooth aperiodic content (Gaussian-smoothed noise, σ 3 px); one change per
+row, on a fresh set-up each, against the unchanged calibration. "true" is the content's mean
+motion per plane from the simulator's ground truth. "report s" is the median of three calls of
+`residual_report` (its cached predictor: OpenCL when a device exists).
+
+``cost`` (cubicle): per backend, the predictor's one-off build and the report's median time
+(after three warm-up calls; the device synchronised inside each call, which returns host
+numbers), wall-clock and CPU time (all of the process's threads, the OpenCL CPU device's
+included: on a machine shared with other jobs the wall clock also counts their time), the
+watcher's share of a 30 fps frame period at 2 and 4 looks per second
+(report time x looks per second: the time per second, hence per period, the watcher takes),
+and, for the fastest backend, what a watcher thread does to a 30 fps frame loop on the main
+thread: the loop sleeps to each frame's deadline, and its lateness (wake-up delay past the
+deadline, median and 95th percentile) is measured with no watcher and with a thread
+reporting 2 and 4 times a second.
+
+    python tools/bench_watch.py [--table accuracy|cost|all] [preset ...]
+
+Writes ``bench_results/watch-<git commit>.json`` (the cost table).
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
+import json
+import subprocess
+import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from rtdefocus import sim
+from rtdefocus.cl.runtime import opencl_available
 from rtdefocus.planar import apply_h
-from rtdefocus.watch import residual_report
+from rtdefocus.watch import ResidualPredictor, residual_report
 
+ROOT = Path(__file__).resolve().parent.parent
+FPS = 30.0
 CHANGES = [
     ("unchanged", {}),
     ("projector 0.3° + 3 px", {"bump": {"projector_yaw_deg": 0.3, "projector_shift_px": 3.0}}),
@@ -46,16 +68,20 @@ def true_motion(calib, pc, plane):
     return (back - pts).mean(axis=0)
 
 
-def main(presets) -> None:
+def set_up(preset):
+    pc = sim.VirtualProCam(preset)
+    calib = sim.oracle_calibration(pc)
+    calib.camera_lut = np.tile(pc.truth.camera_response, (3, 1)).astype(np.float32)
+    return pc, calib, content(pc.projector_size)
+
+
+def accuracy(presets) -> None:
     print("| preset | change | change s | report s | gain | ambient added (true) | band ratio "
           "| shift per plane, proj px (true) |")
     print("|---|---|---|---|---|---|---|---|")
     for preset in presets:
         for name, change in CHANGES:
-            pc = sim.VirtualProCam(preset)
-            calib = sim.oracle_calibration(pc)
-            calib.camera_lut = np.tile(pc.truth.camera_response, (3, 1)).astype(np.float32)
-            frame = content(pc.projector_size)
+            pc, calib, frame = set_up(preset)
             gamma0 = pc.truth.ambient_proj.copy()
             t0 = time.perf_counter()
             for kind, params in change.items():
@@ -65,6 +91,7 @@ def main(presets) -> None:
                     getattr(pc, kind)(**params)
             t_change = time.perf_counter() - t0
             cap = pc.capture(frame)
+            residual_report(calib, frame, cap)          # builds the cached predictor
             times = []
             for _ in range(3):
                 t0 = time.perf_counter()
@@ -76,8 +103,101 @@ def main(presets) -> None:
                 f"({true_motion(calib, pc, p)[0]:+.2f}, {true_motion(calib, pc, p)[1]:+.2f})"
                 for p in range(calib.n_planes))
             print(f"| {preset} | {name} | {t_change:.1f} | {np.median(times):.2f} | {r.gain:.3f} "
-                  f"| {r.ambient_added:.4f} ({added:.4f}) | {r.band_ratio:.3f} | {shifts} |")
+                  f"| {r.ambient_added:.4f} ({added:.4f}) | {r.band_ratio:.3f} | {shifts} |",
+                  flush=True)
+
+
+def frame_loop_lateness(predictor, frame, cap, looks: float, seconds: float) -> np.ndarray:
+    """Lateness (s) of a 30 fps loop on this thread while another reports ``looks``/s."""
+    stop = threading.Event()
+
+    def watch():
+        period = 1.0 / looks
+        nxt = time.perf_counter()
+        while not stop.is_set():
+            predictor.report(frame, cap)
+            nxt += period
+            stop.wait(max(0.0, nxt - time.perf_counter()))
+
+    thread = threading.Thread(target=watch, daemon=True) if looks > 0 else None
+    if thread:
+        thread.start()
+    late = []
+    t0 = time.perf_counter()
+    for i in range(int(seconds * FPS)):
+        deadline = t0 + (i + 1) / FPS
+        time.sleep(max(0.0, deadline - time.perf_counter()))
+        late.append(time.perf_counter() - deadline)
+    stop.set()
+    if thread:
+        thread.join()
+    return np.array(late)
+
+
+def cost(preset: str, rounds: int = 7, seconds: float = 4.0) -> dict:
+    pc, calib, frame = set_up(preset)
+    pc.bump(projector_shift_px=3.0)                  # a report that has something to align
+    cap = pc.capture(frame)
+    backends = ["numpy"] + (["opencl"] if opencl_available()[0] else [])
+    out: dict = {"preset": preset, "fps": FPS, "backends": {}}
+    print(f"| backend | predictor build s | report ms (median of {rounds}) | report CPU ms "
+          "| share of a 30 fps period at 2 looks/s (CPU) | at 4 looks/s (CPU) |")
+    print("|---|---|---|---|---|---|")
+    best = None
+    for backend in backends:
+        t0 = time.perf_counter()
+        pred = ResidualPredictor(calib, backend=backend)
+        build = time.perf_counter() - t0
+        for _ in range(3):
+            pred.report(frame, cap)
+        times, cpu = [], []
+        for _ in range(rounds):
+            t0, c0 = time.perf_counter(), time.process_time()
+            pred.report(frame, cap)
+            times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+        med, med_cpu = float(np.median(times)), float(np.median(cpu))
+        out["backends"][backend] = {"build_s": build, "report_s": med, "report_cpu_s": med_cpu,
+                                    "share_2": med * 2, "share_4": med * 4}
+        print(f"| {backend} | {build:.2f} | {med * 1e3:.0f} | {med_cpu * 1e3:.0f} "
+              f"| {med * 2:.0%} ({med_cpu * 2:.0%}) | {med * 4:.0%} ({med_cpu * 4:.0%}) |",
+              flush=True)
+        if best is None or med < best[1]:
+            best = (pred, med, backend)
+    pred, _, backend = best
+    print(f"\n30 fps loop on the main thread, watcher thread on {backend} "
+          f"({seconds:.0f} s per row):\n")
+    print("| looks/s | lateness median ms | p95 ms | max ms | p95 share of a period |")
+    print("|---|---|---|---|---|")
+    out["loop"] = {}
+    for looks in (0, 2, 4):
+        late = frame_loop_lateness(pred, frame, cap, looks, seconds) * 1e3
+        p95 = float(np.percentile(late, 95))
+        out["loop"][looks] = {"median_ms": float(np.median(late)), "p95_ms": p95,
+                              "max_ms": float(late.max())}
+        print(f"| {looks} | {np.median(late):.1f} | {p95:.1f} | {late.max():.1f} "
+              f"| {p95 / (1e3 / FPS):.0%} |", flush=True)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--table", choices=["accuracy", "cost", "all"], default="all")
+    ap.add_argument("presets", nargs="*", default=["cubicle", "webcam_cubicle"])
+    args = ap.parse_args()
+    if args.table in ("accuracy", "all"):
+        accuracy(args.presets)
+    if args.table in ("cost", "all"):
+        print()
+        out = cost(args.presets[0])
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip() or "unknown"
+        dest = ROOT / "bench_results" / f"watch-{commit}.json"
+        dest.parent.mkdir(exist_ok=True)
+        dest.write_text(json.dumps(out, indent=1))
+        print("wrote", dest)
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["cubicle", "webcam_cubicle"])
+    raise SystemExit(main())

@@ -23,6 +23,10 @@ class HardwareProCam:
     camera pixel covers more than ~1.5 projector pixels, and learn a coarse projector→camera
     map from ``2 * coarse_bits`` Gray-code patterns for the content check.
 
+    ``look(shown)`` takes the camera's picture of whatever the show's own window is showing
+    (nothing is projected: the watcher of a show calls it while the player draws its frames
+    into ``window``), synchronised by time in the same way.
+
     ``capture(pattern)`` shows the pattern and waits until the swap is done (``glFinish``),
     drains the camera by time (every frame delivered before swap + ``settle`` is discarded, at
     least ``flush`` of them, until the driver's queue is empty), averages ``average`` frames,
@@ -79,6 +83,11 @@ class HardwareProCam:
     camera_backend : str
         OpenCV capture backend for a camera index: ``"auto"`` (default), ``"v4l2"``,
         ``"dshow"``, ``"msmf"`` or ``"avfoundation"``.
+    latency : float, optional
+        The projector-to-camera latency in seconds, as the calibration measured it
+        (:func:`~rtdefocus.hardware.remembered.remembered_latency`): given, start-up shows
+        nothing on the projector (no black/white timing, no coarse map, so no content check);
+        what watching a show needs, where the audience must see only the show.
 
     Attributes
     ----------
@@ -87,6 +96,9 @@ class HardwareProCam:
     cam : rtdefocus.hardware.Camera
     controls : ControlReport or None
     latency : rtdefocus.hardware.sync.Latency or None
+        The start-up measurement (None when ``latency`` was given or the camera is a file).
+    latency_s : float or None
+        The projector-to-camera latency in use, measured or given.
     settle : float
         The settle time in use (it grows after a failed content check).
     recaptured : int
@@ -104,14 +116,17 @@ class HardwareProCam:
                  fps: float | None = None, lock: bool = False, exposure: float | None = None,
                  verify: bool = True, coarse_bits: int = 3, recaptures: int = 3,
                  projector_size: tuple[int, int] | None = None, window=None,
-                 fullscreen: bool = True, capture_factory=None, camera_backend: str = "auto"):
+                 fullscreen: bool = True, capture_factory=None, camera_backend: str = "auto",
+                 latency: float | None = None):
         from .camera import CameraSettings, open_camera
 
         if (settle is not None and settle < 0) or flush < 0 or average < 1 or retries < 0 \
-                or recaptures < 0 or not 1 <= coarse_bits <= 6:
+                or recaptures < 0 or not 1 <= coarse_bits <= 6 \
+                or (latency is not None and not 0 <= latency < 60):
             raise InputError(f"need settle >= 0, flush >= 0, average >= 1, retries >= 0, "
-                             f"recaptures >= 0, 1 <= coarse_bits <= 6; got {settle}, {flush}, "
-                             f"{average}, {retries}, {recaptures}, {coarse_bits}")
+                             f"recaptures >= 0, 1 <= coarse_bits <= 6, 0 <= latency < 60 s; got "
+                             f"{settle}, {flush}, {average}, {retries}, {recaptures}, "
+                             f"{coarse_bits}, {latency}")
         self.camera, self.screen, self.camera_backend = camera, screen, camera_backend
         self.flush, self.average, self.retries = int(flush), int(average), int(retries)
         self.recaptures, self.verify = int(recaptures), bool(verify)
@@ -119,7 +134,9 @@ class HardwareProCam:
         self.captures = self.recaptured = 0
         self.controls = self.latency = self.coarse = None
         self.exposure_changed = False
+        self.latency_s: float | None = None
         self.pixel_ratio: float | None = None
+        self.looked_at: float | None = None
         self._stopped = False
         self._own_window = window is None
         self._prev = None                         # (pattern, camera cells) of the last capture
@@ -141,7 +158,9 @@ class HardwareProCam:
             self.frame_period = 1.0 / float(getattr(window, "refresh_rate", None) or 60.0)
             if lock:
                 self._lock(exposure)
-            if self.cam.live:
+            if self.cam.live and latency is not None:
+                self._use_latency(float(latency), settle)
+            elif self.cam.live:
                 self._measure(settle)
                 if self.verify:
                     self._learn_coarse_map(coarse_bits)
@@ -194,10 +213,18 @@ class HardwareProCam:
         set_exposure(self.cam.cap, self.controls, seconds, self.frame_period)
         self.exposure_changed = True
 
+    def _use_latency(self, seconds: float, settle: float | None) -> None:
+        """A known latency: the settle time follows from it, and nothing is shown."""
+        self.latency_s = seconds
+        self.settle = max(self.settle, seconds + 2 * self.cam.frame_period)
+        log.info("projector-to-camera latency %.0f ms as calibrated (not measured again)",
+                 seconds * 1e3)
+
     def _measure(self, settle: float | None) -> None:
         from .sync import lit_fraction, measure_latency, projector_px_per_camera_px
 
         self.latency = lat = measure_latency(self.cam, self._show, self.projector_size)
+        self.latency_s = lat.seconds
         needed = lat.seconds + 2 * self.cam.frame_period
         if settle is not None and settle < needed:
             log.warning("settle %.0f ms is shorter than the measured projector-to-camera latency "
@@ -279,6 +306,44 @@ class HardwareProCam:
         self.captures += 1
         return frame
 
+    def look(self, shown: float | None = None) -> np.ndarray:
+        """The camera's picture of what the show's window is showing: nothing is projected.
+
+        Frames that left the projector before ``shown + settle`` (the calibrated latency plus
+        two camera frames) are drained; the next ``average`` frames are averaged, as in
+        :meth:`capture`. :attr:`looked_at` is then the time the first of them was on the wall
+        (its arrival less the latency), to pick the shown frame it is compared with.
+
+        Parameters
+        ----------
+        shown : float, optional
+            ``time.perf_counter()`` when the frame to be watched was put up (the window's
+            swap time); default now.
+
+        Returns
+        -------
+        (Hc, Wc, 3) uint8 RGB.
+
+        Raises
+        ------
+        CaptureError
+            The window was closed, or the camera stopped delivering frames.
+        """
+        if self.window is None or self.window.should_close:
+            raise CaptureError("the projector window was closed; watching stopped")
+        t = time.perf_counter() if shown is None else float(shown)
+        if self.cam.live:
+            self.cam.drain(t + self.settle, min_frames=0)
+        else:
+            self.cam.drain(0.0, min_frames=self.flush)
+        arrived = time.perf_counter()
+        first = self.cam.read()
+        acc = first.astype(np.float32)
+        for _ in range(self.average - 1):
+            acc += self.cam.read()
+        self.looked_at = arrived - (self.latency_s or 0.0)
+        return np.clip(np.rint(acc / self.average), 0, 255).astype(np.uint8)
+
     def drift(self) -> float | None:
         """Relative change of the white level since start-up (a white screen is captured now):
         +0.05 = 5 % brighter. None for a video-file camera. Large values mean the exposure or
@@ -312,7 +377,7 @@ class HardwareProCam:
             "camera": dict(self.cam.negotiated) if getattr(self, "cam", None) else None,
             "controls": ({"applied": self.controls.applied, "failed": self.controls.failed,
                           "exposure_s": self.controls.exposure_s} if self.controls else None),
-            "latency_s": self.latency.seconds if self.latency else None,
+            "latency_s": self.latency_s,
             "settle_s": self.settle, "projector_px_per_camera_px": self.pixel_ratio,
             "captures": self.captures, "recaptured": self.recaptured,
             "restarts": self.cam.restarts if getattr(self, "cam", None) else 0,

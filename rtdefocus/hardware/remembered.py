@@ -6,7 +6,8 @@ A calibration of a real set-up stores, in ``meta["hardware"]``:
              desktop, and the ``index`` it had;
 ``camera``   ``name`` (where the platform says), ``index``, ``backend`` (``--camera-backend``),
              the ``size``, ``fourcc`` and ``fps`` it delivered, ``lock`` and the locked
-             ``exposure_s`` and control values.
+             ``exposure_s`` and control values, and the projector-to-camera ``latency_s``
+             measured at start-up (a watcher takes the show's pictures by it).
 
 ``play``, ``check`` and ``aim`` take the monitor and camera from there when no option names
 them; a monitor that is missing or is not the calibrated one is an error listing the
@@ -80,6 +81,8 @@ def hardware_record(procam, *, monitors: list[dict] | None = None,
         name = same[0].name if same else ""
     camera = camera_record(procam.cam, source=procam.camera, backend=backend, name=name,
                            controls=procam.controls)
+    latency = getattr(procam, "latency_s", None)
+    camera["latency_s"] = None if latency is None else round(float(latency), 4)
     return {"monitor": monitor, "camera": camera}
 
 
@@ -87,6 +90,18 @@ def remembered(calib) -> dict:
     """``{"monitor": ..., "camera": ...}`` a calibration recorded (empty dict for none)."""
     rec = calib.meta.get("hardware") if calib is not None else None
     return rec if isinstance(rec, dict) else {}
+
+
+def remembered_latency(calib) -> float | None:
+    """The projector-to-camera latency (s) the calibration measured, or None (a simulated or
+    older calibration, or a camera file): ``HardwareProCam(..., latency=...)`` takes it."""
+    value = (remembered(calib).get("camera") or {}).get("latency_s")
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        log.warning("the calibration's camera latency %r is not a number; measuring it again",
+                    value)
+        return None
 
 
 # --------------------------------------------------------------------------- monitors

@@ -1,15 +1,16 @@
 """Watching the show: what the camera should see of the frame on the wall, what a capture says
-changed (:mod:`~rtdefocus.watch.residual`), the mends that explain it
-(:mod:`~rtdefocus.watch.mend`), the :class:`Watcher` the Player drives
-(:mod:`~rtdefocus.watch.watcher`) and what a watched show needs around it
-(:mod:`~rtdefocus.watch.session`)."""
+changed (:mod:`~rtdefocus.watch.residual`), prepared once per calibration
+(:mod:`~rtdefocus.watch.predictor`), the mends that explain it (:mod:`~rtdefocus.watch.mend`),
+the :class:`Watcher` the Player drives (:mod:`~rtdefocus.watch.watcher`) and what a watched show
+needs around it (:mod:`~rtdefocus.watch.session`)."""
 
 from .mend import mend_camera, mend_light, mend_projector, rescale_kernels
-from .residual import ResidualReport, observe_proj, predict_proj, residual_report
+from .predictor import ResidualPredictor
+from .residual import ResidualReport, observe_proj, predict_proj, predictor_for, residual_report
 from .session import FrameClock, save_watched, timeline_view, watched_path
 from .watcher import Thresholds, Watcher, WatchEvent, WatchUpdate, camera_view
 
-__all__ = ["FrameClock", "ResidualReport", "Thresholds", "WatchEvent", "WatchUpdate", "Watcher",
-           "camera_view", "mend_camera", "mend_light", "mend_projector", "observe_proj",
-           "predict_proj", "rescale_kernels", "residual_report", "save_watched", "timeline_view",
-           "watched_path"]
+__all__ = ["FrameClock", "ResidualPredictor", "ResidualReport", "Thresholds", "WatchEvent",
+           "WatchUpdate", "Watcher", "camera_view", "mend_camera", "mend_light", "mend_projector",
+           "observe_proj", "predict_proj", "predictor_for", "rescale_kernels", "residual_report",
+           "save_watched", "timeline_view", "watched_path"]
