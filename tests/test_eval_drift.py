@@ -91,3 +91,31 @@ def test_cli_drift_runs(tmp_path, capsys):
     assert rc == 0
     assert (tmp_path / "drift.md").exists() and (tmp_path / "drift.json").exists()
     assert "eval --drift" in capsys.readouterr().out
+
+
+def test_watch_row_mends_a_light_change(tmp_path):
+    """The room light rises by 0.1 of full white: the watcher detects it, and the watch row is
+    back within 0.5 dB of the oracle within 2 s, never more than 0.5 dB below geometry only
+    before its mend."""
+    from rtdefocus import sim
+
+    ambient = sim.VirtualProCam("cubicle", projector_size=TINY["size"],
+                                camera_size=(256, 192)).ambient
+    result = run_drift_eval(tmp_path, **TINY, duration_s=2.5, false_alarm_s=0, plot=False,
+                            events=[(0.5, "set_light", {"ambient": ambient + 0.1})])
+    (ev,) = result["events"]
+    assert ev["detected_s"] is not None and ev["detected_s"] <= 1.0
+    assert ev["detected_as"] == "light"
+    assert ev["recovered_s"] is not None and ev["recovered_s"] <= 2.0
+    assert ev["worst_vs_geometry_db"] >= -0.5
+    assert ev["pattern_frames"] == 0
+
+
+def test_unchanged_show_with_a_cut_raises_no_alarm():
+    """5 s of the unchanged set-up (still, pan, the cut at 4 s) through the watch row: no
+    detection, no update, every frame compensated."""
+    from rtdefocus.study.eval_drift import run_false_alarm
+
+    fa = run_false_alarm("cubicle", TINY["size"], TINY["fps"], 5.0)
+    assert fa["frames"] == 50
+    assert (fa["detections"], fa["updates"], fa["geometry_frames"]) == (0, 0, 0)

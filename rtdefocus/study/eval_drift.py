@@ -230,7 +230,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             upd = watcher.poll()
             if upd is not None:
                 watch_calib = upd.calibration
-                updates.append({"t": t, "frame": i, **_update_info(upd)})
+                updates.append(_update_info(upd, t, i))
         show.start_frame()
         seg, image = clip[i % len(clip)]
         reference = show.view(show.warp(oracle, image), sharp=True)
@@ -262,11 +262,14 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             "backend": next(iter(show.comps.values()))[1].backend if show.comps else backend}
 
 
-def _update_info(upd) -> dict:
-    """What a watcher update says of itself, minus its calibration."""
-    info = {k: v for k, v in _as_dict(upd).items() if k != "calibration"}
-    return {k: v for k, v in info.items() if isinstance(v, (str, int, float, bool, list, tuple,
-                                                             type(None)))}
+def _update_info(upd, t: float, frame: int) -> dict:
+    """An update applied before ``frame`` (show time ``t``): what it says of itself (the time
+    of the look it came from as ``look_t``), minus its calibration."""
+    info = {k: v for k, v in vars(upd).items() if k != "calibration"
+            and isinstance(v, (str, int, float, bool, list, tuple, type(None)))}
+    if "t" in info:
+        info["look_t"] = info.pop("t")
+    return {**info, "t": t, "frame": frame}
 
 
 # ---------------------------------------------------------------------------- figures
@@ -375,7 +378,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
         upd = watcher.poll()
         if upd is not None:
             calib = upd.calibration
-            updates.append({"t": clock.t, "frame": i, **_update_info(upd)})
+            updates.append(_update_info(upd, clock.t, i))
         show.start_frame()
         image = clip[i % len(clip)][1]
         if watcher.trusted:
