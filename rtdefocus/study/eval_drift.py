@@ -53,7 +53,7 @@ from ..gl.warp import warp_image
 from ..sim import Timeline, oracle_calibration
 from .eval_video import Segment, make_clip
 from .machine import machine_info
-from .scores import camera_view, psnr, rect_mask
+from .scores import camera_view, psnr
 
 log = logging.getLogger(__name__)
 
@@ -128,8 +128,10 @@ class _Show:
     """One frame-stepped play: compensators per calibration (each runs once per frame, so rows
     sharing a calibration share its warm start), warps and captures memoised per frame."""
 
-    def __init__(self, procam, rect, mask, size, iterations, backend):
-        self.procam, self.rect, self.mask = procam, rect, mask
+    def __init__(self, procam, rect, size, iterations, backend):
+        self.procam, self.rect = procam, rect
+        x, y, w, h = (int(v) for v in rect)
+        self.crop = np.s_[max(0, y):max(0, y + h), max(0, x):max(0, x + w)]
         self.size, self.iterations, self.backend = size, iterations, backend
         self.comps: dict[int, tuple] = {}
         self.views: dict = {}           # (sharp, frame key) -> view; cleared when the truth changes
@@ -170,7 +172,8 @@ class _Show:
         return self.views[key]
 
     def score(self, frame, reference) -> float:
-        return psnr(self.view(frame), reference, self.mask)
+        # Inside the display rectangle (as rect_mask, by slicing).
+        return psnr(self.view(frame)[self.crop], reference[self.crop])
 
 
 def _make_procam(preset, size, camera_size, seed):
@@ -208,8 +211,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
     original = oracle_calibration(procam)
     wp, hp = procam.projector_size
     rect = original.display_rect((wp, hp))
-    mask = rect_mask(rect, (procam.camera_size[1], procam.camera_size[0]))
-    show = _Show(procam, rect, mask, (wp, hp), iterations, backend)
+    show = _Show(procam, rect, (wp, hp), iterations, backend)
     clip = make_clip((wp, hp), drift_segments(fps))
     n = int(round(duration_s * fps))
     clock = _ShowClock()
@@ -366,7 +368,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     calib = oracle_calibration(procam)
     wp, hp = procam.projector_size
     rect = calib.display_rect((wp, hp))
-    show = _Show(procam, rect, None, (wp, hp), iterations, backend)
+    show = _Show(procam, rect, (wp, hp), iterations, backend)
     clip = make_clip((wp, hp), drift_segments(fps))
     clock = _ShowClock()
     watcher = _new_watcher(calib, procam, clock, watcher_options)
