@@ -142,6 +142,7 @@ class Compensator:
         check_precondition(precondition)
         self.adjoint = adjoint
         self.precondition = precondition
+        self.psf_energy, self.blur_variant = psf_energy, blur_variant
         if psf_energy is not None and not 0.9 <= float(psf_energy) <= 1.0:
             raise InputError(f"psf_energy must be in [0.9, 1] (the share of each kernel's energy "
                              f"kept, e.g. 0.999) or None; got {psf_energy!r}")
@@ -201,6 +202,18 @@ class Compensator:
     def display_rect(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
         """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears."""
         return self.calib.display_rect(size)
+
+    def with_calibration(self, calib) -> Compensator:
+        """A new Compensator with this one's options for another calibration of the same
+        projector (a mended one): swapping it in between two frames is atomic, and this one
+        stays untouched for the frame in progress."""
+        return Compensator(calib, backend=self.backend, method=self.method,
+                           solver=self.solver_name, iterations=self.iterations, tol=self.tol,
+                           weights=self.weights, headroom=self.headroom,
+                           warp_backend=self.warp_backend, wiener_nsr=self.wiener_nsr,
+                           blur_variant=self.blur_variant, surface=self.surface,
+                           brightness=self.brightness, psf_energy=self.psf_energy,
+                           adjoint=self.adjoint, precondition=self.precondition)
 
     def warp(self, image: np.ndarray) -> np.ndarray:
         """Geometry correction only: (H, W, 3) uint8 input -> (Hp, Wp, 3) uint8 projector frame."""

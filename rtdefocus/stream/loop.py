@@ -126,6 +126,10 @@ class Player:
         Realtime playback with the adaptive budget: show a frame with geometry only when
         compensating it would make the loop drop the next one (default True; see the module's
         drop policy).
+    watcher : rtdefocus.watch.Watcher, optional
+        Offered every frame shown; its mended calibration is swapped in between two frames (a
+        new Compensator, :meth:`~rtdefocus.Compensator.with_calibration`), and while it does not
+        trust the model, frames are shown with geometry only.
 
     Notes
     -----
@@ -140,7 +144,7 @@ class Player:
                  queue_size: int | None = None, cache=None, progress: ProgressFn | None = None,
                  overlay: bool = False, max_iterations: int | None = None, refine_tol: float = 2e-4,
                  refine_max: int | None = None, ahead: int = 2, keymap: dict[str, str] | None = None,
-                 threads: bool = True, catch_up: bool = True):
+                 threads: bool = True, catch_up: bool = True, watcher=None):
         if iterations is not None and iterations < 0:
             raise InputError(f"iterations must be >= 0; got {iterations}")
         if fps is not None and fps <= 0:
@@ -183,6 +187,7 @@ class Player:
         self._catch_up = CatchUp(self.budget) if self.budget is not None else None
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
+        self.watcher = watcher
 
     def settings(self) -> dict:
         """What changes a compensated still: the slide cache keys on it (with the calibration)."""
@@ -312,6 +317,8 @@ class Player:
         (self._writer or self.sink).write(out, index)   # the writer: hand-off only
         t1 = time.perf_counter()
         st.add("present", t1 - t0)
+        if self.watcher is not None:
+            self.watcher.offer(out)
         st.add("frame", t1 - t_start)
         if t_read is not None:
             st.add("latency", t1 - t_read)
@@ -323,7 +330,8 @@ class Player:
         read-back, no second upload)."""
         calib = getattr(self.comp, "calib", None)
         return ((catching_up or self.controls.mode == "geometry") and not self.controls.overlay
-                and calib is not None and getattr(self.sink, "can_warp", None) is not None
+                and calib is not None and self.watcher is None  # (the watcher needs the frame)
+                and getattr(self.sink, "can_warp", None) is not None
                 and self.sink.can_warp(calib))
 
     def present_unrefined(self, image: np.ndarray, index: int, t_start: float) -> None:
@@ -486,6 +494,7 @@ class Player:
             if frame.index <= self._last_index:  # the queue is FIFO; this would be a bug
                 raise RuntimeError(f"frame {frame.index} after {self._last_index}: reordered")
             self._last_index = frame.index
+            self._apply_watch()
             t0 = time.perf_counter()
             if self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
@@ -498,7 +507,7 @@ class Player:
                     self._catch_up.new_picture(frame.index)
                 action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
                                                           still, repeat)
-                geometry = action == "geometry"
+                geometry = action == "geometry" or not (self.watcher is None or self.watcher.trusted)
                 self._prev_compensated = not geometry and self.controls.mode == "full"
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
@@ -515,6 +524,13 @@ class Player:
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)
+
+    def _apply_watch(self) -> None:
+        """Between two frames: the watcher's mended calibration, as a new Compensator."""
+        update = self.watcher.poll() if self.watcher is not None else None
+        if update is not None:
+            self.comp = self._refiner.comp = self.comp.with_calibration(update.calibration)
+            log.info("calibration updated by the watcher (%s)", ", ".join(update.kinds))
 
     def _refresh_held(self, held: Frame, shown_version: int) -> int:
         """Paused video: keep refining the held frame until converged (it continues from the P

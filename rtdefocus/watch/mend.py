@@ -1,0 +1,189 @@
+"""New calibrations that explain what the watcher saw change: the room light, a knocked
+camera or projector, the focus.
+
+Every function returns a new :class:`~rtdefocus.calib.file.Calibration` and never modifies
+the one it is given (the compensator in use keeps reading it until the swap); arrays that do
+not change are shared between the two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import cv2
+import numpy as np
+
+from ..calib.file import Calibration
+from ..errors import InputError
+from ..planar import PlaneLayout, apply_h, lit_polygon, normalise_line
+
+log = logging.getLogger(__name__)
+
+
+def _translation(d) -> np.ndarray:
+    """3×3 homography x -> x + d."""
+    return np.array([[1.0, 0.0, d[0]], [0.0, 1.0, d[1]], [0.0, 0.0, 1.0]])
+
+
+def _derive(calib: Calibration, **changes) -> Calibration:
+    """A copy of ``calib`` with ``changes`` (fresh caches, no diagnostics picture)."""
+    meta = dict(calib.meta)
+    meta["watched"] = int(meta.get("watched", 0)) + 1
+    out = dataclasses.replace(calib, meta=meta, **changes)
+    out.geometry_detail = None
+    return out
+
+
+# ---------------------------------------------------------------------------- light
+def mend_light(calib: Calibration, gain: float, ambient_added: float) -> Calibration:
+    """The calibration with its radiometry re-estimated from a residual report: the camera
+    sees ``gain`` times the predicted light plus ``ambient_added`` of room light (mean camera
+    linear light) in the shape of the calibrated ambient (uniform where none was measured).
+
+    ``albedo' = gain · albedo``, ``ambient' = gain · ambient + ambient_added · shape``.
+    """
+    if not (np.isfinite(gain) and gain > 0 and np.isfinite(ambient_added)):
+        raise InputError(f"a light mend needs a finite gain > 0 and a finite added ambient; got "
+                         f"gain={gain!r}, ambient_added={ambient_added!r}")
+    wp, hp = calib.projector_size
+    albedo = calib.albedo_proj if calib.albedo_proj is not None else np.ones((hp, wp, 3), np.float32)
+    ambient = calib.ambient_proj if calib.ambient_proj is not None else np.zeros((hp, wp, 3), np.float32)
+    level = float(ambient.mean())
+    shape = ambient / level if level > 1e-6 else np.ones_like(ambient)
+    return _derive(calib, albedo_proj=(albedo * np.float32(gain)).astype(np.float32),
+                   ambient_proj=(ambient * np.float32(gain)
+                                 + np.float32(ambient_added) * shape).astype(np.float32))
+
+
+# ---------------------------------------------------------------------------- geometry
+def camera_motion(calib: Calibration, shifts_proj: np.ndarray) -> np.ndarray:
+    """(n, 2) camera px: each plane's content shift (projector px) as a camera-space motion at
+    the plane's centre (the homography's Jacobian there); NaN rows stay NaN."""
+    out = np.full((calib.n_planes, 2), np.nan)
+    plane = calib.plane_map()
+    for p in range(calib.n_planes):
+        ys, xs = np.nonzero(plane == p)
+        if not xs.size or not np.all(np.isfinite(shifts_proj[p])):
+            continue
+        c = np.array([[xs.mean(), ys.mean()]])
+        out[p] = (apply_h(calib.H_cam_from_proj[p], c) - apply_h(calib.H_cam_from_proj[p],
+                                                                   c - shifts_proj[p]))[0]
+    return out
+
+
+def mend_camera(calib: Calibration, shift_cam) -> Calibration:
+    """The calibration after the camera turned so that its view moved by ``shift_cam`` =
+    (dx, dy) camera px: one camera-side correction for every plane. The projector and the
+    walls did not move, so everything in projector space stays (the warp shows the content
+    where it was on the wall)."""
+    C = _translation(np.asarray(shift_cam, np.float64))
+    C_inv = np.linalg.inv(C)
+    H = np.einsum("ij,njk->nik", C, calib.H_cam_from_proj)
+    H_inv = np.einsum("nij,jk->nik", calib.H_proj_from_cam, C_inv)
+    folds_cam = np.array([normalise_line(C_inv.T @ f) for f in calib.folds_cam]).reshape(-1, 3)
+    return _derive(calib, H_cam_from_proj=H, H_proj_from_cam=H_inv / H_inv[:, 2:3, 2:3],
+                   folds_cam=folds_cam, lit_polygon_cam=apply_h(C, calib.lit_polygon_cam))
+
+
+def _shift_per_plane(field: np.ndarray, plane: np.ndarray, shifts: np.ndarray,
+                     nearest: bool) -> np.ndarray:
+    """``field`` (Hp, Wp[, C]) resampled so that pixel y of plane p takes the old value at
+    y + d_p (what the wall under y was lit by before the projector moved)."""
+    hp, wp = field.shape[:2]
+    ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float32)
+    map_x, map_y = xs.copy(), ys.copy()
+    for p, d in enumerate(shifts):
+        sel = plane == p
+        map_x[sel] += np.float32(d[0])
+        map_y[sel] += np.float32(d[1])
+    interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+    # Channel by channel in float32 (remap takes neither int32 nor many channels; indices
+    # below 2**24 are exact in float32).
+    flat = field.reshape(hp, wp, -1)
+    chans = [cv2.remap(np.ascontiguousarray(flat[..., i], np.float32), map_x, map_y, interp,
+                       borderMode=cv2.BORDER_REPLICATE) for i in range(flat.shape[2])]
+    return np.stack(chans, axis=2).reshape(field.shape).astype(field.dtype)
+
+
+def mend_projector(calib: Calibration, shifts_proj: np.ndarray) -> Calibration:
+    """The calibration after the projector moved so that the content on plane p moved by
+    ``shifts_proj[p]`` = (dx, dy) projector px: one correction per plane, the folds kept
+    consistent.
+
+    Plane p's projector pixel y now lights the wall point y + d_p lit before, so
+    ``H_cam_from_proj'_p = H_cam_from_proj_p · T(d_p)``. The walls did not move: each fold's
+    camera line stays, and its projector line is the one both neighbouring planes' new
+    homographies agree on best (the mean of the two pull-backs). The maps of the wall
+    (albedo, ambient, the kernel field) move with the wall: pixel y takes the value of
+    y + d_p.
+    """
+    d = np.asarray(shifts_proj, np.float64).reshape(calib.n_planes, 2)
+    if not np.all(np.isfinite(d)):
+        raise InputError("a projector mend needs a finite shift for every plane")
+    H = np.stack([calib.H_cam_from_proj[p] @ _translation(d[p]) for p in range(calib.n_planes)])
+    H_inv = np.stack([_translation(-d[p]) @ calib.H_proj_from_cam[p] for p in range(calib.n_planes)])
+    folds_proj = []
+    for f, (a, b) in zip(calib.folds_cam, calib.fold_planes, strict=True):
+        la, lb = normalise_line(H[a].T @ f), normalise_line(H[b].T @ f)
+        ref = normalise_line(calib.folds_proj[len(folds_proj)])
+        # The same orientation as the calibrated fold (plane a stays on its negative side).
+        la = la if la[:2] @ ref[:2] >= 0 else -la
+        lb = lb if lb[:2] @ ref[:2] >= 0 else -lb
+        folds_proj.append(normalise_line(0.5 * (la + lb)))
+    folds_proj = np.array(folds_proj, np.float64).reshape(-1, 3)
+    layout = PlaneLayout(calib.n_planes, folds_proj, calib.fold_planes)
+    changes = {"H_cam_from_proj": H, "H_proj_from_cam": H_inv / H_inv[:, 2:3, 2:3],
+               "folds_proj": folds_proj,
+               "lit_polygon_cam": lit_polygon(calib.projector_size, H, layout)}
+    new_plane = (np.zeros(calib.plane_map().shape, np.int8) if calib.n_planes == 1 else
+                 layout.label(*np.mgrid[0:calib.projector_size[1], 0:calib.projector_size[0]][::-1]))
+    for name in ("albedo_proj", "ambient_proj"):
+        value = getattr(calib, name)
+        if value is not None:
+            changes[name] = _shift_per_plane(value, new_plane, d, nearest=False)
+    if calib.has_psf:
+        changes["pix_idx"] = _shift_per_plane(calib.pix_idx, new_plane, d, nearest=True)
+        changes["pix_wts"] = _shift_per_plane(calib.pix_wts, new_plane, d, nearest=True)
+        pts = calib.psf_points_proj.astype(np.float64).copy()
+        for p in range(calib.n_planes):
+            pts[calib.psf_plane == p] -= d[p]
+        changes["psf_points_proj"] = pts.astype(np.float32)
+    return _derive(calib, **changes)
+
+
+# ---------------------------------------------------------------------------- focus
+def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
+    """The calibration with every kernel's radius scaled by ``scale`` (the focus ring turned):
+    each PSF zoomed about its centre, on a support grown to hold it, and renormalised to unit
+    sum. The kernel field (which PSFs blend at each pixel) stays."""
+    if not calib.has_psf:
+        raise InputError("rescale_kernels needs the calibration's kernels (its PSF section)")
+    scale = float(scale)
+    if not (np.isfinite(scale) and 0.25 <= scale <= 4.0):
+        raise InputError(f"kernel scale must be within [0.25, 4]; got {scale!r}")
+    psfs = np.asarray(calib.psfs, np.float32)
+    n, k, _ = psfs.shape
+    k_new = max(k, int(2 * np.ceil(0.5 * (k - 1) * scale) + 1))
+    c_old, c_new = 0.5 * (k - 1), 0.5 * (k_new - 1)
+    # Sample the zoomed kernel by area: each new tap integrates the old kernel over its
+    # footprint (a plain resample of a sharp disc edge would alias).
+    sub = 4
+    fine = k_new * sub
+    # Fine sample u (new kernel coordinates (u + 0.5) / sub − 0.5) reads the old kernel at
+    # c_old + (that − c_new) / scale.
+    off = c_old + (0.5 / sub - 0.5 - c_new) / scale
+    M = np.float32([[1.0 / (scale * sub), 0.0, off], [0.0, 1.0 / (scale * sub), off]])
+    out = np.empty((n, k_new, k_new), np.float32)
+    for i in range(n):
+        up = cv2.warpAffine(psfs[i], M, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        small = up.reshape(k_new, sub, k_new, sub).sum(axis=(1, 3))
+        s = float(small.sum())
+        if s > 0:
+            out[i] = small / s
+        else:                      # a kernel too small to sample: a delta
+            out[i] = 0.0
+            out[i, k_new // 2, k_new // 2] = 1.0
+    return _derive(calib, psfs=out)
+

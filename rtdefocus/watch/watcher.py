@@ -1,0 +1,407 @@
+"""The watcher: during a show the camera looks at the wall a few times a second, the
+calibration's forward model predicts that view from the frame that was shown, and the
+difference says what changed (DESIGN.md §9, "The watcher").
+
+Each look gives a :class:`~rtdefocus.watch.residual.ResidualReport`. The watcher attributes a
+difference to **geometry**, then **light**, then **focus** (in that order: a bump also changes
+the light fit and the band-pass energy), with hysteresis: a kind is *detected* when
+``confirm`` successive looks exceed its high threshold, and the set-up counts as unchanged
+again only below its low threshold. A look compares the camera frame with the very frame the
+projector showed when it was taken (the Player hands that frame over), so moving content and
+cuts are no change.
+
+On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
+shows geometry only, never worse than no compensation) and a mend is estimated from the
+content, with no pattern on the screen:
+
+* light: albedo and ambient re-scaled by the report's gain and added room light;
+* geometry: a camera move (every plane's content moved by one camera-space shift) is one
+  camera-side correction for all planes; otherwise a projector move, one shift per plane
+  with the folds kept consistent (:mod:`~rtdefocus.watch.mend`);
+* focus: every kernel's radius rescaled by the factor whose prediction best explains the
+  capture (least residual over a golden-section search).
+
+The mend becomes a new :class:`~rtdefocus.calib.file.Calibration` (the one in use is never
+modified), handed to the Player by :meth:`Watcher.poll` as a :class:`WatchUpdate` that it
+applies between two frames. The next look checks it: below the low thresholds the model is
+trusted again; otherwise the remaining difference is mended the same way.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..calib.file import Calibration
+from ..errors import InputError, RtDefocusError
+from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
+from .residual import ResidualReport, residual_report
+
+log = logging.getLogger(__name__)
+
+#: The kinds of change the watcher tells apart, in the order it attributes a difference.
+KINDS = ("geometry", "light", "focus")
+
+
+@dataclass
+class WatchEvent:
+    """One thing the watcher did.
+
+    Attributes
+    ----------
+    t : show time (s, the watcher's clock) of the look that led to it.
+    kind : "geometry" | "light" | "focus" | "lost" (the camera no longer sees the frame).
+    action : "detect" (a change confirmed: the model is no longer trusted), "mend" (a new
+        calibration handed to the Player), "trusted" (a look after the mend found the model
+        right again), "retract" (a confirmed change whose mend came out too small to apply:
+        a false alarm), "give up" (mends did not converge; a re-calibration is needed).
+    detail : what was measured or done (JSON-friendly numbers).
+    pattern_frames : pattern frames shown for it (0: mended from the content alone).
+    """
+
+    t: float
+    kind: str
+    action: str
+    detail: dict = field(default_factory=dict)
+    pattern_frames: int = 0
+
+
+@dataclass
+class WatchUpdate:
+    """What :meth:`Watcher.poll` hands the Player to apply between two frames.
+
+    Attributes
+    ----------
+    calibration : the new calibration (a new object; the previous one is left as it was).
+    kinds : what changed, e.g. ("geometry",).
+    trusted : whether the model was trusted when the update was made (a fresh mend is not
+        yet: the next look checks it).
+    t : show time of the look the mend came from.
+    """
+
+    calibration: Calibration
+    kinds: tuple[str, ...]
+    trusted: bool
+    t: float
+
+
+@dataclass
+class Thresholds:
+    """High (detect) and low (clear) thresholds of each kind, with hysteresis between them.
+
+    geometry_px : largest per-plane content shift (projector px), counted on planes whose
+        phase-correlation peak is at least ``min_confidence``.
+    gain : |gain − 1| (exposure or albedo change).
+    ambient : |added room light| (mean camera linear light).
+    focus : |band ratio / its value while trusted − 1|.
+    """
+
+    geometry_px: tuple[float, float] = (0.6, 0.3)
+    gain: tuple[float, float] = (0.03, 0.015)
+    ambient: tuple[float, float] = (0.008, 0.004)
+    focus: tuple[float, float] = (0.03, 0.015)
+    min_confidence: float = 0.05
+
+
+def camera_view(procam) -> Callable[[np.ndarray], np.ndarray]:
+    """``look(shown_projector_frame) -> camera frame`` for a :class:`Watcher`.
+
+    A procam with a ``look()`` method (hardware: the camera frame of whatever the show's
+    window shows, no pattern projected) is asked for that; otherwise (the virtual set-up)
+    ``procam.capture`` renders the camera's view of the frame shown.
+    """
+    look = getattr(procam, "look", None)
+    if callable(look):
+        return lambda shown: look()
+    return procam.capture
+
+
+class Watcher:
+    """Watches the show through the camera and mends the calibration it runs with.
+
+    Parameters
+    ----------
+    calib : the calibration the show starts with (never modified).
+    look : ``look(shown_projector_frame) -> (Hc, Wc, 3) uint8`` the camera's view of the frame
+        the projector is showing (:func:`camera_view`).
+    period_s : seconds between looks, by ``clock``.
+    clock : seconds, monotonic (a simulated clock makes an evaluation deterministic).
+    threaded : look, report and decide on a background thread (frames are not delayed; a
+        look due while the last is still being worked on is skipped); False does it all in
+        :meth:`offer` (deterministic).
+    thresholds : :class:`Thresholds`.
+    confirm : successive looks over a high threshold that make a detection.
+    max_mends : mends of one change before the watcher gives up (the change needs a
+        re-calibration; the model stays untrusted, frames geometry only).
+    report : the residual report function (``residual_report``'s signature).
+
+    Attributes
+    ----------
+    calib : the latest calibration (the one the last update carries).
+    events : list of :class:`WatchEvent`, in time order.
+    false_alarms : confirmed detections the watcher retracted because the change, once
+        estimated, was below the low threshold (nothing applied). An evaluation that knows
+        when the set-up changed counts its own: detections with no change since the last one.
+    looks : looks made; reports : the last report.
+    """
+
+    def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
+                 period_s: float = 0.25, clock: Callable[[], float] = time.monotonic,
+                 threaded: bool = True, thresholds: Thresholds | None = None, confirm: int = 2,
+                 max_mends: int = 4, report: Callable[..., ResidualReport] = residual_report):
+        if not (math.isfinite(period_s) and period_s >= 0):
+            raise InputError(f"period_s must be a number of seconds >= 0; got {period_s!r}")
+        if confirm < 1:
+            raise InputError(f"confirm must be >= 1; got {confirm!r}")
+        self.calib = calib
+        self.look = look
+        self.period_s = float(period_s)
+        self.clock = clock
+        self.threaded = bool(threaded)
+        self.th = thresholds or Thresholds()
+        self.confirm = int(confirm)
+        self.max_mends = int(max_mends)
+        self.report = report
+        self.events: list[WatchEvent] = []
+        self.false_alarms = 0
+        self.looks = 0
+        self.last_report: ResidualReport | None = None
+        self._trusted = True
+        self._pending: WatchUpdate | None = None
+        self._lock = threading.Lock()
+        self._last_look = -math.inf
+        self._suspect: dict[str, int] = dict.fromkeys(KINDS, 0)
+        self._measured: dict[str, list] = {k: [] for k in KINDS}
+        self._band_base: list[float] = []
+        self._mending: str | None = None      # the kind being mended, until trusted again
+        self._mends = 0
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    # ------------------------------------------------------------------ the Player's side
+    @property
+    def trusted(self) -> bool:
+        """False while a change is detected and not yet mended and checked (or an update is
+        waiting for the Player): show geometry only."""
+        with self._lock:
+            return self._trusted and self._pending is None
+
+    def offer(self, shown: np.ndarray, source: np.ndarray | None = None) -> bool:
+        """The Player showed ``shown`` ((Hp, Wp, 3) uint8, the projector frame) for the input
+        ``source``: look now if a look is due. Returns whether a look was started."""
+        self._raise_error()
+        t = float(self.clock())
+        if t - self._last_look < self.period_s:
+            return False
+        if self.threaded:
+            if self._thread is not None and self._thread.is_alive():
+                return False
+            self._last_look = t
+            frame = np.array(shown, copy=True)
+            self._thread = threading.Thread(target=self._work, args=(frame, t),
+                                            name="rtdefocus-watch", daemon=True)
+            self._thread.start()
+            return True
+        self._last_look = t
+        self.step(shown, self.look(shown), t)
+        return True
+
+    def poll(self) -> WatchUpdate | None:
+        """The update waiting to be applied between two frames (once), or None."""
+        self._raise_error()
+        with self._lock:
+            update, self._pending = self._pending, None
+        return update
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Wait for a look in progress to finish."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def _work(self, frame: np.ndarray, t: float) -> None:
+        try:
+            self.step(frame, self.look(frame), t)
+        except BaseException as exc:          # handed to the Player's thread by poll / offer
+            self._error = exc
+
+    def _raise_error(self) -> None:
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
+
+    # ------------------------------------------------------------------ one look
+    def step(self, shown: np.ndarray, capture: np.ndarray, t: float) -> ResidualReport | None:
+        """Compare ``capture`` with the prediction for ``shown`` and act on it (a look without
+        the clock: tests and evaluations may call it directly). Returns the report (None when
+        the camera no longer sees the frame)."""
+        self.looks += 1
+        calib = self.calib
+        try:
+            r = self.report(calib, shown, capture)
+        except InputError as exc:
+            self._distrust(t, "lost", {"error": str(exc)})
+            return None
+        self.last_report = r
+        over, under = self._classify(calib, r)
+        kind = next((k for k in KINDS if over[k]), None)
+        for k in KINDS:
+            self._suspect[k] = self._suspect[k] + 1 if k == kind else 0
+            if k != kind:
+                self._measured[k] = []
+        if kind is None:
+            if all(under.values()):
+                if not self.trusted and self._mending is not None:
+                    self._event(t, self._mending, "trusted", {})
+                    self._mending, self._mends = None, 0
+                    with self._lock:
+                        self._trusted = True
+                if self.trusted and math.isfinite(r.band_ratio):
+                    self._band_base = (self._band_base + [r.band_ratio])[-16:]
+            return r
+        self._measured[kind].append(r)
+        if self._suspect[kind] < self.confirm and self._mending is None:
+            return r
+        if self._mending is None:
+            self._event(t, kind, "detect", self._describe(kind, r))
+            self._mending, self._mends = kind, 0
+        self._distrust(t, None, None)
+        self._mend(kind, shown, capture, t)
+        return r
+
+    def _classify(self, calib: Calibration, r: ResidualReport) -> tuple[dict, dict]:
+        """Per kind: over its high threshold, and under its low one."""
+        th = self.th
+        ok = np.isfinite(r.shifts_proj).all(axis=1) & (r.confidence >= th.min_confidence)
+        geo = float(np.linalg.norm(r.shifts_proj[ok], axis=1).max()) if ok.any() else 0.0
+        gain = abs(r.gain - 1.0)
+        amb = abs(r.ambient_added)
+        base = float(np.median(self._band_base)) if self._band_base else None
+        focus = abs(r.band_ratio / base - 1.0) if base and math.isfinite(r.band_ratio) else 0.0
+        # While a kind is being mended, anything over its low threshold still needs mending.
+        i = {k: 1 if self._mending == k else 0 for k in KINDS}
+        over = {"geometry": geo > th.geometry_px[i["geometry"]],
+                "light": gain > th.gain[i["light"]] or amb > th.ambient[i["light"]],
+                "focus": focus > th.focus[i["focus"]] and calib.has_psf}
+        under = {"geometry": geo < th.geometry_px[1],
+                 "light": gain < th.gain[1] and amb < th.ambient[1],
+                 "focus": focus < th.focus[1] or not calib.has_psf}
+        return over, under
+
+    @staticmethod
+    def _describe(kind: str, r: ResidualReport) -> dict:
+        if kind == "geometry":
+            return {"shifts_proj": np.round(r.shifts_proj, 3).tolist()}
+        if kind == "light":
+            return {"gain": round(r.gain, 4), "ambient_added": round(r.ambient_added, 5)}
+        return {"band_ratio": round(r.band_ratio, 4)}
+
+    def _distrust(self, t: float, kind: str | None, detail: dict | None) -> None:
+        with self._lock:
+            was, self._trusted = self._trusted, False
+        if kind is not None and (was or self._mending != kind):
+            self._event(t, kind, "detect", detail or {})
+            self._mending = kind
+
+    def _event(self, t: float, kind: str, action: str, detail: dict, patterns: int = 0) -> None:
+        ev = WatchEvent(t, kind, action, detail, patterns)
+        self.events.append(ev)
+        log.info("watch %.2f s: %s %s %s", t, kind, action, detail)
+
+    # ------------------------------------------------------------------ mends
+    def _mend(self, kind: str, shown: np.ndarray, capture: np.ndarray, t: float) -> None:
+        reports = self._measured[kind][-self.confirm:]
+        self._measured[kind] = []
+        self._suspect[kind] = 0
+        if self._mends >= self.max_mends:
+            if self._mends == self.max_mends:
+                self._event(t, kind, "give up", {"mends": self._mends})
+                log.warning("the %s change could not be mended from the content after %d tries; "
+                            "showing geometry only: re-calibrate (`rtdefocus calibrate`)",
+                            kind, self._mends)
+                self._mends += 1
+            return
+        try:
+            new, detail = self._estimate(kind, reports, shown, capture)
+        except RtDefocusError as exc:
+            log.warning("could not mend the %s change: %s", kind, exc)
+            self._mends += 1
+            return
+        if new is None:
+            self._event(t, kind, "retract", detail)
+            if self._mends == 0:
+                self.false_alarms += 1
+            self._mending = None
+            with self._lock:
+                self._trusted = True
+            return
+        self._mends += 1
+        self.calib = new
+        self._event(t, kind, "mend", detail)
+        with self._lock:
+            kinds = (kind,) if self._pending is None else tuple(dict.fromkeys(
+                (*self._pending.kinds, kind)))
+            self._pending = WatchUpdate(new, kinds, False, t)
+
+    def _estimate(self, kind: str, reports: list[ResidualReport], shown: np.ndarray,
+                  capture: np.ndarray) -> tuple[Calibration | None, dict]:
+        """The mended calibration and what was done, or (None, detail) when the change is too
+        small to apply."""
+        calib, th = self.calib, self.th
+        if kind == "light":
+            gain = float(np.median([r.gain for r in reports]))
+            added = float(np.median([r.ambient_added for r in reports]))
+            detail = {"gain": round(gain, 4), "ambient_added": round(added, 5)}
+            if abs(gain - 1) < th.gain[1] and abs(added) < th.ambient[1]:
+                return None, detail
+            return mend_light(calib, gain, added), detail
+        if kind == "geometry":
+            shifts = np.nanmedian(np.stack([r.shifts_proj for r in reports]), axis=0)
+            shifts = np.where(np.isfinite(shifts), shifts, np.nanmean(shifts, axis=0))
+            detail = {"shifts_proj": np.round(shifts, 3).tolist()}
+            if not np.all(np.isfinite(shifts)):
+                raise InputError("no plane's content shift could be measured")
+            if float(np.linalg.norm(shifts, axis=1).max()) < th.geometry_px[1]:
+                return None, detail
+            cam = camera_motion(calib, shifts)
+            if calib.n_planes > 1 and np.all(np.isfinite(cam)):
+                spread = float(np.linalg.norm(cam - cam.mean(axis=0), axis=1).max())
+                if spread < 0.25 + 0.1 * float(np.linalg.norm(cam.mean(axis=0))):
+                    detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
+                    return mend_camera(calib, cam.mean(axis=0)), detail
+            detail["moved"] = "projector"
+            return mend_projector(calib, shifts), detail
+        scale = self._fit_scale(shown, capture)
+        detail = {"kernel_scale": round(scale, 4)}
+        if abs(scale - 1.0) < 0.02:
+            return None, detail
+        self._band_base = []            # the band ratio's level is the new kernels' from now
+        return rescale_kernels(calib, scale), detail
+
+    def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, lo: float = 0.6,
+                   hi: float = 1.6, tol: float = 0.01) -> float:
+        """The kernel radius scale whose prediction of ``capture`` leaves the least residual
+        (golden-section search on ``rms_after``)."""
+        def cost(s: float) -> float:
+            c = self.calib if s == 1.0 else rescale_kernels(self.calib, s)
+            return self.report(c, shown, capture).rms_after
+
+        g = (math.sqrt(5) - 1) / 2
+        a, b = math.log(lo), math.log(hi)
+        x1, x2 = b - g * (b - a), a + g * (b - a)
+        f1, f2 = cost(math.exp(x1)), cost(math.exp(x2))
+        while b - a > tol:
+            if f1 < f2:
+                b, x2, f2 = x2, x1, f1
+                x1 = b - g * (b - a)
+                f1 = cost(math.exp(x1))
+            else:
+                a, x1, f1 = x1, x2, f2
+                x2 = a + g * (b - a)
+                f2 = cost(math.exp(x2))
+        return math.exp(0.5 * (a + b))
