@@ -395,6 +395,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     events = [_as_dict(e) for e in watcher.events]
     return {"preset": preset, "size": (wp, hp), "fps": float(fps), "seconds": float(seconds),
             "frames": n, "detections": len(_detections(events)), "updates": len(updates),
+            "retracted": int(watcher.false_alarms),
             "geometry_frames": geometry_frames, "watch_events": events,
             "update_list": updates}
 

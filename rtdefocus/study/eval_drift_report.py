@@ -66,8 +66,8 @@ def drift_markdown(result: dict) -> str:
     if fa:
         lines += ["", f"Unchanged set-up, {fa['seconds']:g} s of the clip (cuts included) at "
                   f"{fa['size'][0]}x{fa['size'][1]}, {fa['fps']:g} fps: **{fa['detections']} "
-                  f"detection(s)**, {fa['updates']} update(s), {fa['geometry_frames']} frame(s) "
-                  "shown with geometry only."]
+                  f"detection(s)**, {fa['retracted']} of them retracted by the watcher, {fa['updates']} "
+                  f"update(s), {fa['geometry_frames']} frame(s) shown with geometry only."]
     lines += ["", f"Run time {result['seconds']:.0f} s (this machine, loaded).", ""]
     return "\n".join(lines)
 
