@@ -251,6 +251,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                "psnr": {row: show.score(frames[row], reference) for row in rows}}
         if watcher is not None:
             rec["trusted"] = bool(watcher.trusted)
+            rec["watch_geometry_px"] = geometry_error_px(watch_calib, oracle)
             watcher.offer(frames["watch"], image)
         records.append(rec)
         show.keep_only((original, oracle, watch_calib))
@@ -262,6 +263,15 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             "updates": updates, "records": records,
             "watch_events": [_as_dict(e) for e in (watcher.events if watcher else ())],
             "backend": next(iter(show.comps.values()))[1].backend if show.comps else backend}
+
+
+def geometry_error_px(calib, truth) -> float:
+    """Largest distance (camera px) between where ``calib`` and ``truth`` put projector
+    points, over a 9x9 grid inset by 5 % of the frame (what a geometry mend left over)."""
+    wp, hp = truth.projector_size
+    xs, ys = np.meshgrid(np.linspace(0.05 * wp, 0.95 * wp, 9), np.linspace(0.05 * hp, 0.95 * hp, 9))
+    d = calib.cam_from_proj(xs, ys) - truth.cam_from_proj(xs, ys)
+    return float(np.max(np.hypot(d[:, 0], d[:, 1])))
 
 
 def _update_info(upd, t: float, frame: int) -> dict:
@@ -293,8 +303,9 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
     """Per applied event: detection delay (s), recovery time (s: from the event to the first
     frame from which the watch row stays within ``within_db`` of the oracle until the next
     event), pattern frames shown, the worst frame of the watch row against geometry only
-    between the event and its mend (the first update after it), and the none and watch rows'
-    mean PSNR against the oracle's over the event's span."""
+    between the event and its mend (the first update after it), the none and watch rows'
+    mean PSNR against the oracle's over the event's span, and the watch row's geometry error
+    at the span's end (:func:`geometry_error_px`)."""
     recs, evs = play["records"], play["events"]
     rows = play["rows"]
     t_end = play["duration_s"]
@@ -318,6 +329,8 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
             ups = [u for u in play["updates"] if t0 <= u["t"] < t1]
             fig["mended_s"] = ups[0]["t"] - t0 if ups else None
             fig["updates"] = len(ups)
+            if span and "watch_geometry_px" in span[-1]:
+                fig["geometry_error_px"] = span[-1]["watch_geometry_px"]
             if "oracle" in rows:
                 ok = [r["psnr"]["watch"] >= r["psnr"]["oracle"] - within_db for r in span]
                 first = next((j for j in range(len(span)) if all(ok[j:])), None)

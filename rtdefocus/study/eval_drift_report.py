@@ -47,10 +47,12 @@ def drift_markdown(result: dict) -> str:
         lines += ["", f"Per event (times in seconds of show after the event; *back*: from then "
                   f"on within {w:g} dB of the oracle until the next event; *worst vs geometry*: "
                   f"the watch row's worst frame against geometry only before its first update; "
-                  "*none / watch vs oracle*: mean over the event's span):", "",
+                  "*none / watch vs oracle*: mean over the event's span; *geometry left*: the "
+                  "watch row's largest camera-px error against the truth at the span's end):", "",
                   "| event | at (s) | detected (s) | as | mended (s) | back (s) | pattern frames "
-                  "| worst vs geometry (dB) | none vs oracle (dB) | watch vs oracle (dB) |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+                  "| worst vs geometry (dB) | none vs oracle (dB) | watch vs oracle (dB) "
+                  "| geometry left (px) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for e in evs:
             back = e.get("recovered_s")
             back_txt = ("never" if back is None and "recovered_s" in e else _f(back))
@@ -61,7 +63,8 @@ def drift_markdown(result: dict) -> str:
                 f"{_f(e.get('mended_s'))} | {back_txt} | {e.get('pattern_frames', '–')} | "
                 f"{_f(e.get('worst_vs_geometry_db'), '+.2f')} | "
                 f"{_f(e.get('none_vs_oracle_db'), '+.2f')} | "
-                f"{_f(e.get('watch_vs_oracle_db'), '+.2f')} |")
+                f"{_f(e.get('watch_vs_oracle_db'), '+.2f')} | "
+                f"{_f(e.get('geometry_error_px'))} |")
     fa = result.get("false_alarms")
     if fa:
         lines += ["", f"Unchanged set-up, {fa['seconds']:g} s of the clip (cuts included) at "
