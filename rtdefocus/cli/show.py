@@ -79,6 +79,8 @@ examples:
   rtdefocus play setup.npz camera:0 --screen 1 --fps 30       live camera feed
   rtdefocus play setup.npz clip.mp4 --out clip_comp.mp4       render a video file offline
   rtdefocus play setup.npz clip.mp4 --out null --stats s.json benchmark, statistics as JSON
+  rtdefocus play sim.npz clip.mp4 --out null --watch --sim cubicle --sim-event 2:refocus:scale=1.15
+                                                             watch the virtual set-up change
 """
 
 
@@ -148,7 +150,64 @@ def add_play(sub):
     p.add_argument("--sequential", action="store_true",
                    help="decode, compensate and encode one after another on one thread (for "
                    "comparison; default: decode and file encode on threads of their own)")
+    w = p.add_argument_group("watching the show (the camera checks the calibration as it plays)")
+    w.add_argument("--watch", action="store_true",
+                   help="look at the wall a few times a second and mend the calibration when the "
+                   "room light, the geometry or the focus changed (frames show geometry only "
+                   "until mended)")
+    w.add_argument("--save-updates", action="store_true",
+                   help="with --watch: save the mended calibration beside the original as "
+                   "NAME.watched.npz (the original is never touched)")
+    w.add_argument("--watch-period", type=float, default=0.25, metavar="S",
+                   help="seconds of show time between looks (default 0.25)")
+    w.add_argument("--sim", metavar="PRESET",
+                   help="with --watch: the camera watches the built-in virtual set-up PRESET "
+                   "(of the calibration's sizes) instead of hardware")
+    w.add_argument("--sim-event", action="append", default=[], metavar="T:KIND:NAME=V[,NAME=V]",
+                   help="with --sim: change the virtual set-up at show time T s, e.g. "
+                   "2:bump:projector_shift_px=3 or 4:set_light:ambient=0.2 or 6:refocus:scale=1.15 "
+                   "(repeatable)")
     p.set_defaults(func=cmd_play)
+
+
+def _sim_events(texts: list[str]) -> list:
+    """``--sim-event`` values as timeline events ``(t, kind, params)``."""
+    from ..errors import InputError
+
+    events = []
+    for text in texts:
+        try:
+            t, kind, params = text.split(":", 2)
+            values = dict(kv.split("=", 1) for kv in params.split(",") if kv)
+            events.append((float(t), kind, {k: float(v) for k, v in values.items()}))
+        except ValueError:
+            raise InputError(f"--sim-event must be T:KIND:NAME=VALUE[,NAME=VALUE], e.g. "
+                             f"2:bump:projector_shift_px=3; got {text!r}") from None
+    return events
+
+
+def _watcher(args, calib):
+    """The Watcher of ``--watch`` (None without it)."""
+    from ..errors import InputError
+
+    if not args.watch:
+        if args.save_updates or args.sim or args.sim_event:
+            raise InputError("--save-updates, --sim and --sim-event go with --watch")
+        return None
+    if not args.sim:
+        raise InputError("--watch needs a camera that watches the show: use --sim PRESET for the "
+                         "virtual set-up; on hardware use the API (rtdefocus.watch.Watcher with "
+                         "camera_view(procam))")
+    from .. import sim
+    from ..watch import Watcher
+    from ..watch.session import FrameClock, timeline_view
+
+    procam = sim.VirtualProCam(args.sim, projector_size=tuple(calib.projector_size),
+                               camera_size=tuple(calib.camera_size))
+    clock = FrameClock(args.fps or 30.0)
+    look = timeline_view(procam, sim.Timeline(_sim_events(args.sim_event)), clock)
+    # Show time by frame count: a render to a file is watched at the show's own pace.
+    return Watcher(calib, look, period_s=args.watch_period, clock=clock, threaded=False)
 
 
 def _screen(screen: int | None, calib) -> int:
@@ -193,6 +252,7 @@ def cmd_play(args) -> int:
         placement = Placement(tuple(calib.projector_size), args.fit or "contain",
                               parse_margin(args.margin) if args.margin is not None else 0.0)
     flat = {} if args.flatten is None else {"surface": "flatten", "brightness": args.flatten}
+    watcher = _watcher(args, calib)
     comp = Compensator(calib, backend=args.backend, method=args.method,
                        psf_energy=args.psf_energy, **flat,
                        precondition=None if args.precondition == "none" else args.precondition)
@@ -221,7 +281,7 @@ def cmd_play(args) -> int:
                                     "camera_fps": args.camera_fps,
                                     "camera_backend": args.camera_backend or "auto"},
                     fps=args.fps, iterations=args.iterations, cache=cache, progress=progress,
-                    overlay=args.overlay, threads=not args.sequential)
+                    overlay=args.overlay, threads=not args.sequential, watcher=watcher)
         all_stats = []
         try:
             all_stats = show.run()
@@ -234,11 +294,27 @@ def cmd_play(args) -> int:
                 bar.close()
             if shown is not sink:
                 shown.close()
+            if watcher is not None:
+                _watch_summary(watcher, calib, args)
     for stats in all_stats:
         print(stats.summary())
     if args.stats and all_stats:
         print(f"wrote {_stats_json(all_stats, args.stats)}")
     return 0
+
+
+def _watch_summary(watcher, calib, args) -> None:
+    """What the watcher did; with --save-updates, the mended calibration saved beside the
+    original (only when it changed)."""
+    done = [e for e in watcher.events if e.action in ("detect", "mend", "give up")]
+    print(f"watch: {watcher.looks} looks, {len(done)} events, {watcher.false_alarms} retracted, "
+          f"{watcher.untrusted_frames} frames shown with geometry only until mended")
+    for e in done:
+        print(f"  {e.t:7.2f} s  {e.kind:8s} {e.action:7s} {e.detail}")
+    if args.save_updates and watcher.calib is not calib:
+        from ..watch.session import save_watched
+
+        print(f"wrote {save_watched(watcher.calib, args.calibration)}")
 
 
 def _stats_json(all_stats, path):

@@ -507,10 +507,14 @@ class Player:
                     self._catch_up.new_picture(frame.index)
                 action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
                                                           still, repeat)
-                geometry = action == "geometry" or not (self.watcher is None or self.watcher.trusted)
-                self._prev_compensated = not geometry and self.controls.mode == "full"
+                geometry = action == "geometry"
+                # The watcher knows the model is wrong: geometry only until it is mended.
+                distrust = self.watcher is not None and not self.watcher.trusted
+                self._prev_compensated = not (geometry or distrust) and self.controls.mode == "full"
                 if geometry:
                     self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
+                elif distrust and self.controls.mode == "full":
+                    self.present(self._warp(frame.image), frame.index, frame.t_read, t0)
                 elif action == "reshow":
                     self.present(self._last_out, frame.index, frame.t_read, t0)
                 else:

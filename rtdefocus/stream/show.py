@@ -164,6 +164,7 @@ class Show:
                         attach(player)
                     out.append(player.run())
                     controls = player.controls
+                    self.comp = player.comp     # a watcher's mended calibration carries on
                 sink.next_item()
                 if controls.quit:
                     self.quit = True

@@ -86,17 +86,18 @@ def mend_camera(calib: Calibration, shift_cam) -> Calibration:
                    folds_cam=folds_cam, lit_polygon_cam=apply_h(C, calib.lit_polygon_cam))
 
 
-def _shift_per_plane(field: np.ndarray, plane: np.ndarray, shifts: np.ndarray,
+def _shift_per_plane(field: np.ndarray, plane: np.ndarray, motions: np.ndarray,
                      nearest: bool) -> np.ndarray:
     """``field`` (Hp, Wp[, C]) resampled so that pixel y of plane p takes the old value at
-    y + d_p (what the wall under y was lit by before the projector moved)."""
+    M_p(y) (what the wall under y was lit by before the projector moved); ``motions``
+    (n, 3, 3)."""
     hp, wp = field.shape[:2]
-    ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float32)
-    map_x, map_y = xs.copy(), ys.copy()
-    for p, d in enumerate(shifts):
+    ys, xs = np.mgrid[0:hp, 0:wp].astype(np.float64)
+    map_x, map_y = xs.astype(np.float32), ys.astype(np.float32)
+    for p, M in enumerate(motions):
         sel = plane == p
-        map_x[sel] += np.float32(d[0])
-        map_y[sel] += np.float32(d[1])
+        moved = apply_h(M, np.stack([xs[sel], ys[sel]], axis=1))
+        map_x[sel], map_y[sel] = moved[:, 0], moved[:, 1]
     interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
     # Channel by channel in float32 (remap takes neither int32 nor many channels; indices
     # below 2**24 are exact in float32).
@@ -106,23 +107,27 @@ def _shift_per_plane(field: np.ndarray, plane: np.ndarray, shifts: np.ndarray,
     return np.stack(chans, axis=2).reshape(field.shape).astype(field.dtype)
 
 
-def mend_projector(calib: Calibration, shifts_proj: np.ndarray) -> Calibration:
-    """The calibration after the projector moved so that the content on plane p moved by
-    ``shifts_proj[p]`` = (dx, dy) projector px: one correction per plane, the folds kept
+def mend_projector(calib: Calibration, motions: np.ndarray) -> Calibration:
+    """The calibration after the projector moved: one correction per plane, the folds kept
     consistent.
 
-    Plane p's projector pixel y now lights the wall point y + d_p lit before, so
-    ``H_cam_from_proj'_p = H_cam_from_proj_p · T(d_p)``. The walls did not move: each fold's
-    camera line stays, and its projector line is the one both neighbouring planes' new
-    homographies agree on best (the mean of the two pull-backs). The maps of the wall
-    (albedo, ambient, the kernel field) move with the wall: pixel y takes the value of
-    y + d_p.
+    ``motions``: per plane, the content's shift ``(n, 2)`` = (dx, dy) projector px (as the
+    residual report measures it: ``M_p(y) = y + d``), or a homography ``(n, 3, 3)`` M_p:
+    plane p's projector pixel y now lights the wall point that
+    M_p(y) lit before, so ``H_cam_from_proj'_p = H_cam_from_proj_p · M_p``. The walls
+    did not move: each fold's camera line stays, and its projector line is the one both
+    neighbouring planes' new homographies agree on best (the mean of the two pull-backs).
+    The maps of the wall (albedo, ambient, the kernel field) move with the wall: pixel y
+    takes the value of M_p(y).
     """
-    d = np.asarray(shifts_proj, np.float64).reshape(calib.n_planes, 2)
-    if not np.all(np.isfinite(d)):
-        raise InputError("a projector mend needs a finite shift for every plane")
-    H = np.stack([calib.H_cam_from_proj[p] @ _translation(d[p]) for p in range(calib.n_planes)])
-    H_inv = np.stack([_translation(-d[p]) @ calib.H_proj_from_cam[p] for p in range(calib.n_planes)])
+    m = np.asarray(motions, np.float64)
+    if m.shape == (calib.n_planes, 2):
+        m = np.stack([_translation(d) for d in m])
+    if m.shape != (calib.n_planes, 3, 3) or not np.all(np.isfinite(m)):
+        raise InputError(f"a projector mend needs a finite shift (n, 2) or homography (n, 3, 3) "
+                         f"for each of the {calib.n_planes} planes; got shape {m.shape}")
+    H = np.einsum("nij,njk->nik", calib.H_cam_from_proj, m)
+    H_inv = np.einsum("nij,njk->nik", np.linalg.inv(m), calib.H_proj_from_cam)
     folds_proj = []
     for f, (a, b) in zip(calib.folds_cam, calib.fold_planes, strict=True):
         la, lb = normalise_line(H[a].T @ f), normalise_line(H[b].T @ f)
@@ -141,13 +146,14 @@ def mend_projector(calib: Calibration, shifts_proj: np.ndarray) -> Calibration:
     for name in ("albedo_proj", "ambient_proj"):
         value = getattr(calib, name)
         if value is not None:
-            changes[name] = _shift_per_plane(value, new_plane, d, nearest=False)
+            changes[name] = _shift_per_plane(value, new_plane, m, nearest=False)
     if calib.has_psf:
-        changes["pix_idx"] = _shift_per_plane(calib.pix_idx, new_plane, d, nearest=True)
-        changes["pix_wts"] = _shift_per_plane(calib.pix_wts, new_plane, d, nearest=True)
+        changes["pix_idx"] = _shift_per_plane(calib.pix_idx, new_plane, m, nearest=True)
+        changes["pix_wts"] = _shift_per_plane(calib.pix_wts, new_plane, m, nearest=True)
         pts = calib.psf_points_proj.astype(np.float64).copy()
         for p in range(calib.n_planes):
-            pts[calib.psf_plane == p] -= d[p]
+            sel = calib.psf_plane == p
+            pts[sel] = apply_h(np.linalg.inv(m[p]), pts[sel])
         changes["psf_points_proj"] = pts.astype(np.float32)
     return _derive(calib, **changes)
 
@@ -155,8 +161,9 @@ def mend_projector(calib: Calibration, shifts_proj: np.ndarray) -> Calibration:
 # ---------------------------------------------------------------------------- focus
 def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
     """The calibration with every kernel's radius scaled by ``scale`` (the focus ring turned):
-    each PSF zoomed about its centre, on a support grown to hold it, and renormalised to unit
-    sum. The kernel field (which PSFs blend at each pixel) stays."""
+    each PSF zoomed about its centre (cubic), on a support grown to hold it, and renormalised
+    to unit sum. The kernel field (which PSFs blend at each pixel) stays. Kernels of a pixel or
+    two are only roughly zoomed: the pixel grid, which does not scale, dominates their shape."""
     if not calib.has_psf:
         raise InputError("rescale_kernels needs the calibration's kernels (its PSF section)")
     scale = float(scale)
@@ -166,22 +173,19 @@ def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
     n, k, _ = psfs.shape
     k_new = max(k, int(2 * np.ceil(0.5 * (k - 1) * scale) + 1))
     c_old, c_new = 0.5 * (k - 1), 0.5 * (k_new - 1)
-    # Sample the zoomed kernel by area: each new tap integrates the old kernel over its
-    # footprint (a plain resample of a sharp disc edge would alias).
-    sub = 4
-    fine = k_new * sub
-    # Fine sample u (new kernel coordinates (u + 0.5) / sub − 0.5) reads the old kernel at
-    # c_old + (that − c_new) / scale.
-    off = c_old + (0.5 / sub - 0.5 - c_new) / scale
-    M = np.float32([[1.0 / (scale * sub), 0.0, off], [0.0, 1.0 / (scale * sub), off]])
+    # Point samples of the zoomed kernel, cubic (the identity at scale 1; area sampling of an
+    # interpolated kernel would widen kernels of a pixel or two by the interpolation itself).
+    # New tap m reads the old kernel at c_old + (m − c_new) / scale.
+    off = c_old - c_new / scale
+    M = np.float32([[1.0 / scale, 0.0, off], [0.0, 1.0 / scale, off]])
     out = np.empty((n, k_new, k_new), np.float32)
     for i in range(n):
-        up = cv2.warpAffine(psfs[i], M, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        small = up.reshape(k_new, sub, k_new, sub).sum(axis=(1, 3))
-        s = float(small.sum())
+        z = cv2.warpAffine(psfs[i], M, (k_new, k_new), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        z = np.clip(z, 0.0, None)            # cubic overshoot
+        s = float(z.sum())
         if s > 0:
-            out[i] = small / s
+            out[i] = z / s
         else:                      # a kernel too small to sample: a delta
             out[i] = 0.0
             out[i, k_new // 2, k_new // 2] = 1.0

@@ -58,9 +58,10 @@ class WatchEvent:
     t : show time (s, the watcher's clock) of the look that led to it.
     kind : "geometry" | "light" | "focus" | "lost" (the camera no longer sees the frame).
     action : "detect" (a change confirmed: the model is no longer trusted), "mend" (a new
-        calibration handed to the Player), "trusted" (a look after the mend found the model
-        right again), "retract" (a confirmed change whose mend came out too small to apply:
-        a false alarm), "give up" (mends did not converge; a re-calibration is needed).
+        calibration handed to the Player), "cleared" (a later look found the model right for
+        this kind again), "retract" (a confirmed change whose mend came out too small to
+        apply: a false alarm), "give up" (the mends did not converge: a re-calibration is
+        needed; frames stay geometry only).
     detail : what was measured or done (JSON-friendly numbers).
     pattern_frames : pattern frames shown for it (0: mended from the content alone).
     """
@@ -97,16 +98,22 @@ class Thresholds:
 
     geometry_px : largest per-plane content shift (projector px), counted on planes whose
         phase-correlation peak is at least ``min_confidence``.
-    gain : |gain − 1| (exposure or albedo change).
-    ambient : |added room light| (mean camera linear light).
+    gain : |gain / its level while trusted − 1| (exposure or albedo change).
+    ambient : |added room light − its level while trusted| (mean camera linear light).
     focus : |band ratio / its value while trusted − 1|.
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
-    gain: tuple[float, float] = (0.03, 0.015)
-    ambient: tuple[float, float] = (0.008, 0.004)
-    focus: tuple[float, float] = (0.03, 0.015)
+    gain: tuple[float, float] = (0.04, 0.02)
+    ambient: tuple[float, float] = (0.015, 0.0075)
+    focus: tuple[float, float] = (0.012, 0.006)
     min_confidence: float = 0.05
+
+
+def _band(r: ResidualReport) -> float:
+    """The band ratio with the light fit's gain taken out: a light mend moves the gain into
+    the albedo, which would otherwise move the ratio's level as much."""
+    return r.band_ratio / r.gain if r.gain > 0 else float("nan")
 
 
 def camera_view(procam) -> Callable[[np.ndarray], np.ndarray]:
@@ -137,6 +144,8 @@ class Watcher:
         :meth:`offer` (deterministic).
     thresholds : :class:`Thresholds`.
     confirm : successive looks over a high threshold that make a detection.
+    band_looks : trusted looks that set the band ratio's level before a focus change can be
+        detected (after every mend the level is measured again).
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
@@ -148,13 +157,15 @@ class Watcher:
     false_alarms : confirmed detections the watcher retracted because the change, once
         estimated, was below the low threshold (nothing applied). An evaluation that knows
         when the set-up changed counts its own: detections with no change since the last one.
-    looks : looks made; reports : the last report.
+    looks : looks made; last_report : the last look's report.
+    untrusted_frames : frames offered while the model was not trusted (shown geometry only).
     """
 
     def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
                  period_s: float = 0.25, clock: Callable[[], float] = time.monotonic,
                  threaded: bool = True, thresholds: Thresholds | None = None, confirm: int = 2,
-                 max_mends: int = 4, report: Callable[..., ResidualReport] = residual_report):
+                 max_mends: int = 4, band_looks: int = 4,
+                 report: Callable[..., ResidualReport] = residual_report):
         if not (math.isfinite(period_s) and period_s >= 0):
             raise InputError(f"period_s must be a number of seconds >= 0; got {period_s!r}")
         if confirm < 1:
@@ -168,19 +179,21 @@ class Watcher:
         self.confirm = int(confirm)
         self.max_mends = int(max_mends)
         self.report = report
+        self.band_looks = int(band_looks)
         self.events: list[WatchEvent] = []
         self.false_alarms = 0
         self.looks = 0
+        self.untrusted_frames = 0
         self.last_report: ResidualReport | None = None
         self._trusted = True
+        self._active: dict[str, int] = {}     # kinds detected and not yet cleared: mends made
         self._pending: WatchUpdate | None = None
         self._lock = threading.Lock()
         self._last_look = -math.inf
         self._suspect: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._measured: dict[str, list] = {k: [] for k in KINDS}
         self._band_base: list[float] = []
-        self._mending: str | None = None      # the kind being mended, until trusted again
-        self._mends = 0
+        self._light_base: list[tuple[float, float]] = []
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
 
@@ -196,6 +209,8 @@ class Watcher:
         """The Player showed ``shown`` ((Hp, Wp, 3) uint8, the projector frame) for the input
         ``source``: look now if a look is due. Returns whether a look was started."""
         self._raise_error()
+        if not self.trusted:
+            self.untrusted_frames += 1
         t = float(self.clock())
         if t - self._last_look < self.period_s:
             return False
@@ -241,56 +256,87 @@ class Watcher:
         the clock: tests and evaluations may call it directly). Returns the report (None when
         the camera no longer sees the frame)."""
         self.looks += 1
-        calib = self.calib
         try:
-            r = self.report(calib, shown, capture)
+            r = self.report(self.calib, shown, capture)
         except InputError as exc:
-            self._distrust(t, "lost", {"error": str(exc)})
+            if "lost" not in self._active:
+                self._active["lost"] = 0
+                self._event(t, "lost", "detect", {"error": str(exc)})
+                log.warning("the camera no longer sees the show as calibrated (%s): showing "
+                            "geometry only; re-calibrate (`rtdefocus calibrate`)", exc)
+            self._update_trust()
             return None
         self.last_report = r
-        over, under = self._classify(calib, r)
-        kind = next((k for k in KINDS if over[k]), None)
+        if self._active.pop("lost", None) is not None:
+            self._event(t, "lost", "cleared", {})
+        over, under = self._classify(r)
+        todo = None
+        blocked = False          # an earlier kind is changing: later kinds are not judged
         for k in KINDS:
-            self._suspect[k] = self._suspect[k] + 1 if k == kind else 0
-            if k != kind:
-                self._measured[k] = []
-        if kind is None:
-            if all(under.values()):
-                if not self.trusted and self._mending is not None:
-                    self._event(t, self._mending, "trusted", {})
-                    self._mending, self._mends = None, 0
-                    with self._lock:
-                        self._trusted = True
-                if self.trusted and math.isfinite(r.band_ratio):
-                    self._band_base = (self._band_base + [r.band_ratio])[-16:]
-            return r
-        self._measured[kind].append(r)
-        if self._suspect[kind] < self.confirm and self._mending is None:
-            return r
-        if self._mending is None:
-            self._event(t, kind, "detect", self._describe(kind, r))
-            self._mending, self._mends = kind, 0
-        self._distrust(t, None, None)
-        self._mend(kind, shown, capture, t)
+            if k in self._active:
+                self._suspect[k] = 0
+                if under[k]:
+                    del self._active[k]
+                    self._event(t, k, "cleared", {})
+                    continue
+                # Mended but not right yet: mend what is left.
+                self._measured[k] = [r]
+                todo = todo or k
+                blocked = True
+            elif blocked or not over[k]:
+                self._suspect[k], self._measured[k] = 0, []
+            else:
+                blocked = True
+                self._suspect[k] += 1
+                self._measured[k].append(r)
+                if self._suspect[k] >= self.confirm:
+                    self._active[k] = 0
+                    self._event(t, k, "detect", self._describe(k, r))
+                    todo = todo or k
+        if todo is not None:
+            self._update_trust()            # geometry only from the next frame on
+            self._mend(todo, shown, capture, t)
+        elif not self._active and not any(over.values()) and math.isfinite(_band(r)):
+            self._band_base = (self._band_base + [_band(r)])[-16:]
+            self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
+        self._update_trust()
         return r
 
-    def _classify(self, calib: Calibration, r: ResidualReport) -> tuple[dict, dict]:
+    def _light_ref(self) -> tuple[float, float]:
+        """The gain and added light the reports read while the model was right (a calibration
+        is rarely exact in its light: the levels are judged against these), or (1, 0) before
+        ``band_looks`` such looks and after a light mend (which makes the model explain the
+        light as it is)."""
+        if len(self._light_base) < self.band_looks:
+            return 1.0, 0.0
+        g, a = np.median(np.array(self._light_base), axis=0)
+        return float(g), float(a)
+
+    def _update_trust(self) -> None:
+        with self._lock:
+            was, self._trusted = self._trusted, not self._active
+        if self._trusted and not was:
+            log.info("watch: the model is trusted again")
+
+    def _classify(self, r: ResidualReport) -> tuple[dict, dict]:
         """Per kind: over its high threshold, and under its low one."""
         th = self.th
         ok = np.isfinite(r.shifts_proj).all(axis=1) & (r.confidence >= th.min_confidence)
         geo = float(np.linalg.norm(r.shifts_proj[ok], axis=1).max()) if ok.any() else 0.0
-        gain = abs(r.gain - 1.0)
-        amb = abs(r.ambient_added)
-        base = float(np.median(self._band_base)) if self._band_base else None
-        focus = abs(r.band_ratio / base - 1.0) if base and math.isfinite(r.band_ratio) else 0.0
-        # While a kind is being mended, anything over its low threshold still needs mending.
-        i = {k: 1 if self._mending == k else 0 for k in KINDS}
-        over = {"geometry": geo > th.geometry_px[i["geometry"]],
-                "light": gain > th.gain[i["light"]] or amb > th.ambient[i["light"]],
-                "focus": focus > th.focus[i["focus"]] and calib.has_psf}
+        g_ref, a_ref = self._light_ref()
+        gain = abs(r.gain / g_ref - 1.0)
+        amb = abs(r.ambient_added - a_ref)
+        base = (float(np.median(self._band_base)) if len(self._band_base) >= self.band_looks
+                else None)
+        band = _band(r)
+        focus = abs(band / base - 1.0) if base and math.isfinite(band) else 0.0
+        psf = self.calib.has_psf
+        over = {"geometry": geo > th.geometry_px[0],
+                "light": gain > th.gain[0] or amb > th.ambient[0],
+                "focus": psf and focus > th.focus[0]}
         under = {"geometry": geo < th.geometry_px[1],
                  "light": gain < th.gain[1] and amb < th.ambient[1],
-                 "focus": focus < th.focus[1] or not calib.has_psf}
+                 "focus": not psf or focus < th.focus[1]}
         return over, under
 
     @staticmethod
@@ -300,13 +346,6 @@ class Watcher:
         if kind == "light":
             return {"gain": round(r.gain, 4), "ambient_added": round(r.ambient_added, 5)}
         return {"band_ratio": round(r.band_ratio, 4)}
-
-    def _distrust(self, t: float, kind: str | None, detail: dict | None) -> None:
-        with self._lock:
-            was, self._trusted = self._trusted, False
-        if kind is not None and (was or self._mending != kind):
-            self._event(t, kind, "detect", detail or {})
-            self._mending = kind
 
     def _event(self, t: float, kind: str, action: str, detail: dict, patterns: int = 0) -> None:
         ev = WatchEvent(t, kind, action, detail, patterns)
@@ -318,29 +357,28 @@ class Watcher:
         reports = self._measured[kind][-self.confirm:]
         self._measured[kind] = []
         self._suspect[kind] = 0
-        if self._mends >= self.max_mends:
-            if self._mends == self.max_mends:
-                self._event(t, kind, "give up", {"mends": self._mends})
+        mends = self._active[kind]
+        if mends >= self.max_mends:
+            if mends == self.max_mends:
+                self._event(t, kind, "give up", {"mends": mends})
                 log.warning("the %s change could not be mended from the content after %d tries; "
                             "showing geometry only: re-calibrate (`rtdefocus calibrate`)",
-                            kind, self._mends)
-                self._mends += 1
+                            kind, mends)
+                self._active[kind] = mends + 1
             return
         try:
             new, detail = self._estimate(kind, reports, shown, capture)
         except RtDefocusError as exc:
             log.warning("could not mend the %s change: %s", kind, exc)
-            self._mends += 1
+            self._active[kind] = mends + 1
             return
         if new is None:
             self._event(t, kind, "retract", detail)
-            if self._mends == 0:
+            if mends == 0:
                 self.false_alarms += 1
-            self._mending = None
-            with self._lock:
-                self._trusted = True
+            del self._active[kind]
             return
-        self._mends += 1
+        self._active[kind] = mends + 1
         self.calib = new
         self._event(t, kind, "mend", detail)
         with self._lock:
@@ -357,8 +395,10 @@ class Watcher:
             gain = float(np.median([r.gain for r in reports]))
             added = float(np.median([r.ambient_added for r in reports]))
             detail = {"gain": round(gain, 4), "ambient_added": round(added, 5)}
-            if abs(gain - 1) < th.gain[1] and abs(added) < th.ambient[1]:
+            g_ref, a_ref = self._light_ref()
+            if abs(gain / g_ref - 1) < th.gain[1] and abs(added - a_ref) < th.ambient[1]:
                 return None, detail
+            self._light_base = []
             return mend_light(calib, gain, added), detail
         if kind == "geometry":
             shifts = np.nanmedian(np.stack([r.shifts_proj for r in reports]), axis=0)
@@ -368,40 +408,68 @@ class Watcher:
                 raise InputError("no plane's content shift could be measured")
             if float(np.linalg.norm(shifts, axis=1).max()) < th.geometry_px[1]:
                 return None, detail
-            cam = camera_motion(calib, shifts)
-            if calib.n_planes > 1 and np.all(np.isfinite(cam)):
-                spread = float(np.linalg.norm(cam - cam.mean(axis=0), axis=1).max())
-                if spread < 0.25 + 0.1 * float(np.linalg.norm(cam.mean(axis=0))):
-                    detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
-                    return mend_camera(calib, cam.mean(axis=0)), detail
+            # A camera move shifts the walls with the content, a projector move the content
+            # alone: the mend whose model explains the capture better says which it was.
             detail["moved"] = "projector"
-            return mend_projector(calib, shifts), detail
-        scale = self._fit_scale(shown, capture)
+            new = mend_projector(calib, shifts)
+            cam = camera_motion(calib, shifts)
+            if np.all(np.isfinite(cam)):
+                as_cam = mend_camera(calib, cam.mean(axis=0))
+                rms = {"camera": self.report(as_cam, shown, capture).rms_after,
+                       "projector": self.report(new, shown, capture).rms_after}
+                detail["rms"] = {k: round(v, 6) for k, v in rms.items()}
+                if rms["camera"] < rms["projector"]:
+                    detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
+                    new = as_cam
+            return new, detail
+        if not self._band_base:
+            raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
+        base = float(np.median(self._band_base))
+        scale = self._fit_scale(shown, capture, base)
         detail = {"kernel_scale": round(scale, 4)}
         if abs(scale - 1.0) < 0.02:
             return None, detail
-        self._band_base = []            # the band ratio's level is the new kernels' from now
         return rescale_kernels(calib, scale), detail
 
-    def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, lo: float = 0.6,
-                   hi: float = 1.6, tol: float = 0.01) -> float:
-        """The kernel radius scale whose prediction of ``capture`` leaves the least residual
-        (golden-section search on ``rms_after``)."""
-        def cost(s: float) -> float:
-            c = self.calib if s == 1.0 else rescale_kernels(self.calib, s)
-            return self.report(c, shown, capture).rms_after
+    def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, level: float,
+                   lo: float = 0.5, hi: float = 2.0, tol: float = 0.005) -> float:
+        """The kernel radius scale whose prediction brings the band ratio of ``capture`` back
+        to ``level``, its value while the model was right (the ratio grows with the scale: a
+        blurrier prediction has less band-pass energy). Regula falsi (Illinois) on log scale.
 
-        g = (math.sqrt(5) - 1) / 2
-        a, b = math.log(lo), math.log(hi)
-        x1, x2 = b - g * (b - a), a + g * (b - a)
-        f1, f2 = cost(math.exp(x1)), cost(math.exp(x2))
-        while b - a > tol:
-            if f1 < f2:
-                b, x2, f2 = x2, x1, f1
-                x1 = b - g * (b - a)
-                f1 = cost(math.exp(x1))
+        The ratio, not the residual, is matched: the observation is smoothed by its
+        resampling into projector pixels, so the least residual lies at a larger scale than
+        the true one."""
+        def g(log_s: float) -> float:
+            c = self.calib if log_s == 0.0 else rescale_kernels(self.calib, math.exp(log_s))
+            return math.log(_band(self.report(c, shown, capture)) / level)
+
+        a, b = 0.0, 0.0
+        fa = g(0.0)
+        # Bracket the root from s = 1 outwards.
+        step = math.log(1.15) if fa < 0 else -math.log(1.15)
+        b = step
+        fb = g(b)
+        while fa * fb > 0:
+            if abs(b) >= math.log(hi if step > 0 else 1 / lo):
+                return math.exp(b)
+            a, fa = b, fb
+            b = b + step
+            fb = g(b)
+        side = 0
+        for _ in range(12):
+            c = b - fb * (b - a) / (fb - fa)
+            fc = g(c)
+            if abs(b - a) < tol or fc == 0:
+                return math.exp(c)
+            if fc * fb < 0:
+                a, fa = b, fb
+                if side == -1:
+                    fa /= 2
+                side = -1
             else:
-                a, x1, f1 = x1, x2, f2
-                x2 = a + g * (b - a)
-                f2 = cost(math.exp(x2))
-        return math.exp(0.5 * (a + b))
+                if side == 1:
+                    fa /= 2
+                side = 1
+            b, fb = c, fc
+        return math.exp(b)
