@@ -119,3 +119,22 @@ def test_unchanged_show_with_a_cut_raises_no_alarm():
     fa = run_false_alarm("cubicle", TINY["size"], TINY["fps"], 5.0)
     assert fa["frames"] == 50
     assert (fa["detections"], fa["updates"], fa["geometry_frames"]) == (0, 0, 0)
+
+
+def test_separate_plays_start_each_event_on_a_fresh_setup():
+    """Two events played separately: each play starts unchanged (none equals the oracle until its
+    event), the second event does not inherit the first one's bump, and the figures sit at the
+    events' places on the joined time axis."""
+    from rtdefocus.study.eval_drift import play_separately
+
+    play = play_separately("cubicle", TINY["size"], TINY["fps"],
+                           [BUMP, (3.0, "refocus", {"scale": 1.15})],
+                           ("none", "oracle"), lead_s=0.3, span_s=0.5)
+    recs = play["records"]
+    assert len(recs) == 16 and [r["frame"] for r in recs] == list(range(16))
+    assert [f["t"] for f in play["figures"]] == pytest.approx([0.3, 1.1])
+    for start in (0, 8):
+        assert all(r["psnr"]["none"] == r["psnr"]["oracle"] for r in recs[start:start + 3])
+    bumped, refocused = play["figures"]
+    assert bumped["none_vs_oracle_db"] < -3.0          # a moved picture
+    assert refocused["none_vs_oracle_db"] > -3.0       # a blur change only, no bump left over

@@ -146,6 +146,9 @@ def add_eval(sub):
                    "120; 0 leaves it out)")
     d.add_argument("--false-alarm-size", type=parse_size, metavar="WxH",
                    help="projector size of the false-alarm run (default --size)")
+    d.add_argument("--separate", action="store_true", help="each event on a fresh set-up of its "
+                   "own (2 s, the event, 8 s to recover) instead of one set-up changed event after "
+                   "event")
     d.add_argument("--duration", type=float, metavar="S",
                    help="seconds of show (default: the last event + 8 s, 34 s)")
     p.set_defaults(func=cmd_eval)
@@ -209,7 +212,8 @@ def cmd_eval_drift(args) -> int:
     with Progress(args.quiet) as progress:
         result = run_drift_eval(args.output, preset=args.preset, size=args.size or (800, 600),
                                 camera_size=args.camera_size, fps=fps[0],
-                                duration_s=args.duration, false_alarm_s=args.false_alarm_s,
+                                duration_s=args.duration, separate=args.separate,
+                                false_alarm_s=args.false_alarm_s,
                                 false_alarm_size=args.false_alarm_size, seed=args.seed,
                                 plot=not args.no_plot, step=progress.step)
     print()

@@ -284,6 +284,39 @@ def _update_info(upd, t: float, frame: int) -> dict:
     return {**info, "t": t, "frame": frame}
 
 
+def play_separately(preset: str = "cubicle", size=(800, 600), fps: float = 30.0, events=None,
+                    rows=ROWS, *, lead_s: float = 2.0, span_s: float = SPACING_S, **options) -> dict:
+    """Each event on a fresh set-up of its own: ``lead_s`` seconds of the unchanged show, the
+    event, then ``span_s`` seconds to recover (:func:`play_drift` per event). The plays are
+    laid end to end on one time axis (play ``k`` starts at ``k * (lead_s + span_s)``), so the
+    result reads as :func:`play_drift`'s; ``figures`` holds each event's own
+    :func:`event_figures`, undisturbed by what an earlier event left unmended."""
+    if events is None:
+        events = default_events(_make_procam(preset, size, options.get("camera_size"),
+                                             options.get("seed", 0)))
+    scheduled = Timeline(events).events
+    span = lead_s + span_s
+    out: dict = {"records": [], "events": [], "updates": [], "watch_events": [], "figures": [],
+                 "scheduled": []}
+    for k, ev in enumerate(scheduled):
+        p = play_drift(preset, size, fps, span, [(lead_s, ev.kind, ev.params)], rows, **options)
+        off, first = k * span, len(out["records"])
+
+        def moved(items, off=off):
+            return [{**d, "t": d["t"] + off} for d in items]
+
+        out["records"] += [{**r, "t": r["t"] + off, "frame": r["frame"] + first}
+                           for r in p["records"]]
+        for key in ("events", "updates", "watch_events"):
+            out[key] += moved(p[key])
+        out["figures"] += moved(event_figures(p))
+        out["scheduled"] += [(t + off, kind, params) for t, kind, params in p["scheduled"]]
+        out.update({key: p[key] for key in ("preset", "size", "camera_size", "fps", "rows",
+                                             "rect", "backend")})
+    out["duration_s"] = len(scheduled) * span
+    return out
+
+
 # ---------------------------------------------------------------------------- figures
 def _detections(watch_events) -> list[dict]:
     """The watcher's detections (events whose kind or action says a change was found)."""
@@ -417,9 +450,9 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
 def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle",
                    size=(800, 600), fps: float = 30.0, duration_s: float | None = None,
                    events=None, rows=ROWS, camera_size=None, iterations: int = ITERATIONS,
-                   false_alarm_s: float = 120.0, false_alarm_size=None,
-                   backend: str = "auto", seed: int = 0, watcher_options: dict | None = None,
-                   plot: bool = True, step=None) -> dict:
+                   separate: bool = False, false_alarm_s: float = 120.0,
+                   false_alarm_size=None, backend: str = "auto", seed: int = 0,
+                   watcher_options: dict | None = None, plot: bool = True, step=None) -> dict:
     """Play the clip through a timeline of set-up changes and write ``drift.md``,
     ``drift.json`` and ``drift.png``.
 
@@ -434,6 +467,9 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
         default :func:`default_events` (the four changes 8 s apart from 2 s).
     rows : among :data:`ROWS`.
     iterations : warm-started solver iterations per frame of the compensated rows.
+    separate : each event on a fresh set-up of its own, 2 s after the start, with
+        :data:`SPACING_S` to recover (:func:`play_separately`; ``duration_s`` does not apply)
+        instead of one set-up changing event after event.
     false_alarm_s : seconds of the unchanged run (0: leave it out; it needs the watch row).
     false_alarm_size : (w, h) of that run (default ``size``).
     backend : Compensator backend.
@@ -453,9 +489,12 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
     t_start = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    play = play_drift(preset, size, fps, duration_s, events, rows, camera_size=camera_size,
-                      iterations=iterations, backend=backend, seed=seed,
-                      watcher_options=watcher_options, step=step)
+    options = {"camera_size": camera_size, "iterations": iterations, "backend": backend,
+               "seed": seed, "watcher_options": watcher_options, "step": step}
+    if separate:
+        play = play_separately(preset, size, fps, events, rows, **options)
+    else:
+        play = play_drift(preset, size, fps, duration_s, events, rows, **options)
     recs = play["records"]
     false_alarms = None
     if false_alarm_s and "watch" in play["rows"]:
@@ -467,10 +506,10 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
                      "fps": play["fps"], "duration_s": play["duration_s"], "rows": play["rows"],
                      "iterations": iterations, "backend": play["backend"], "seed": seed,
                      "display_rect": play["rect"], "scheduled": play["scheduled"],
-                     "within_db": WITHIN_DB},
+                     "within_db": WITHIN_DB, "separate": bool(separate)},
         "machine": machine_info(),
         "rows": {row: float(np.mean([r["psnr"][row] for r in recs])) for row in play["rows"]},
-        "events": event_figures(play),
+        "events": play["figures"] if separate else event_figures(play),
         "updates": play["updates"],
         "watch_events": play["watch_events"],
         "false_alarms": ({k: v for k, v in false_alarms.items() if k != "watch_events"}
