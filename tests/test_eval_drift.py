@@ -69,9 +69,9 @@ def test_event_figures_from_records():
     worst vs geometry only: before the first update; detection: the watcher's first detection."""
     psnr = {"oracle": [30, 30, 30, 30, 30], "watch": [29, 28, 29.6, 29.7, 29.8],
             "geometry": [29.0, 28.2, 29, 29, 29], "none": [29, 25, 25, 25, 25]}
-    play = {"rows": tuple(psnr), "duration_s": 5.0,
-            "records": [{"t": float(i), "psnr": {k: v[i] for k, v in psnr.items()}}
-                        for i in range(5)],
+    play = {"rows": tuple(psnr), "duration_s": 5.0, "fps": 1.0,
+            "records": [{"t": float(i), "psnr": {k: v[i] for k, v in psnr.items()},
+                         "trusted": i != 1} for i in range(5)],
             "events": [{"t": 0.0, "kind": "set_light", "params": {"ambient": 0.2}}],
             "watch_events": [{"t": 1.0, "kind": "light", "action": "detect"},
                              {"t": 2.0, "kind": "light", "action": "mend", "pattern_frames": 3}],
@@ -80,6 +80,7 @@ def test_event_figures_from_records():
     assert fig["recovered_s"] == 2.0
     assert fig["detected_s"] == 1.0 and fig["detected_as"] == "light"
     assert fig["mended_s"] == 2.0 and fig["pattern_frames"] == 3
+    assert fig["detections"] == 1 and fig["geometry_only_s"] == 1.0
     assert fig["worst_vs_geometry_db"] == pytest.approx(-0.2)
     assert fig["none_vs_oracle_db"] == pytest.approx(np.mean([-1, -5, -5, -5, -5]))
 

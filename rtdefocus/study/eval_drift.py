@@ -338,7 +338,8 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
     event), pattern frames shown, the worst frame of the watch row against geometry only
     between the event and its mend (the first update after it), the none and watch rows'
     mean PSNR against the oracle's over the event's span, and the watch row's geometry error
-    at the span's end (:func:`geometry_error_px`)."""
+    at the span's end (:func:`geometry_error_px`), the detections in the span and the seconds
+    of it the watch row showed with geometry only."""
     recs, evs = play["records"], play["events"]
     rows = play["rows"]
     t_end = play["duration_s"]
@@ -358,6 +359,8 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
             det = [e for e in _detections(wev)]
             fig["detected_s"] = _t(det[0]) - t0 if det else None
             fig["detected_as"] = str(det[0].get("kind")) if det else None
+            fig["detections"] = len(det)
+            fig["geometry_only_s"] = sum(not r.get("trusted", True) for r in span) / play["fps"]
             fig["pattern_frames"] = int(sum(int(e.get("pattern_frames", 0) or 0) for e in wev))
             ups = [u for u in play["updates"] if t0 <= u["t"] < t1]
             fig["mended_s"] = ups[0]["t"] - t0 if ups else None

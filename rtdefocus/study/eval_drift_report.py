@@ -52,11 +52,12 @@ def drift_markdown(result: dict) -> str:
                   f"on within {w:g} dB of the oracle until the next event; *worst vs geometry*: "
                   f"the watch row's worst frame against geometry only before its first update; "
                   "*none / watch vs oracle*: mean over the event's span; *geometry left*: the "
-                  "watch row's largest camera-px error against the truth at the span's end):", "",
+                  "watch row's largest camera-px error against the truth at the span's end; "
+                  "*geometry-only*: seconds of the span the watch row showed geometry only):", "",
                   "| event | at (s) | detected (s) | as | mended (s) | back (s) | pattern frames "
                   "| worst vs geometry (dB) | none vs oracle (dB) | watch vs oracle (dB) "
-                  "| geometry left (px) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| geometry left (px) | detections | geometry-only (s) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for e in evs:
             back = e.get("recovered_s")
             back_txt = ("never" if back is None and "recovered_s" in e else _f(back))
@@ -68,7 +69,8 @@ def drift_markdown(result: dict) -> str:
                 f"{_f(e.get('worst_vs_geometry_db'), '+.2f')} | "
                 f"{_f(e.get('none_vs_oracle_db'), '+.2f')} | "
                 f"{_f(e.get('watch_vs_oracle_db'), '+.2f')} | "
-                f"{_f(e.get('geometry_error_px'))} |")
+                f"{_f(e.get('geometry_error_px'))} | {e.get('detections', '–')} | "
+                f"{_f(e.get('geometry_only_s'), '.1f')} |")
     fa = result.get("false_alarms")
     if fa:
         lines += ["", f"Unchanged set-up, {fa['seconds']:g} s of the clip (cuts included) at "
