@@ -22,7 +22,7 @@ IMAGE_EXTENSIONS = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", 
 
 
 def rgb_from_cv2(frame: np.ndarray) -> np.ndarray:
-    """An OpenCV frame (BGR (H, W, 3), BGRA (H, W, 4) or gray (H, W)) as RGB uint8 (H, W, 3)."""
+    """An OpenCV frame (BGR (H, W, 3), BGRA (H, W, 4) or grey (H, W)) as RGB uint8 (H, W, 3)."""
     frame = np.asarray(frame)
     if frame.dtype != np.uint8:
         raise InputError(f"expected an 8-bit frame from OpenCV, got dtype {frame.dtype}; "
@@ -37,7 +37,7 @@ def rgb_from_cv2(frame: np.ndarray) -> np.ndarray:
 
 
 def cv2_from_rgb(rgb: np.ndarray) -> np.ndarray:
-    """An RGB uint8 (H, W, 3) image (or gray (H, W)) as the BGR array OpenCV writes."""
+    """An RGB uint8 (H, W, 3) image (or grey (H, W)) as the BGR array OpenCV writes."""
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:
         return rgb

@@ -33,7 +33,7 @@ class ProCam(Protocol):
 
 
 def check_pattern(pattern: np.ndarray, projector_size: tuple[int, int]) -> np.ndarray:
-    """Validate a projector pattern: (Hp, Wp, 3) uint8 RGB (a (Hp, Wp) gray one is expanded)."""
+    """Validate a projector pattern: (Hp, Wp, 3) uint8 RGB (a (Hp, Wp) grey one is expanded)."""
     wp, hp = projector_size
     pattern = np.asarray(pattern)
     if pattern.ndim == 2:

@@ -43,7 +43,7 @@ def calibrated(preset: str) -> Calibrated:
     calib = blind_calibrate(procam)
     blind = Blind(procam)
     variants = calibrate_psf_layouts(
-        blind, copy.deepcopy(calib), capture=Capturer(blind),
+        copy.deepcopy(calib), Capturer(blind),
         layouts=[("paper", False), ("default", True)], averages=calib.meta["psf"]["averages"])
     variants[("default", False)] = calib
     return Calibrated(procam, calib, variants, time.perf_counter() - t0)

@@ -225,7 +225,7 @@ class FakeCapture:
         return 0.7 + 0.25 * np.sin(2 * np.pi * t / 2.0)   # auto-exposure hunting
 
     def _render(self, t):
-        """Gray picture of what the projector showed at ``t`` (cheap: a reader at 30 fps must
+        """Grey picture of what the projector showed at ``t`` (cheap: a reader at 30 fps must
         keep up, as with a real camera)."""
         pattern = self.projector.shown_at(t if self.frozen_at is None else min(t, self.frozen_at))
         if self.world is not None:

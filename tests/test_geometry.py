@@ -20,6 +20,7 @@ from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
+from rtdefocus.calib.capture import Capturer
 from rtdefocus.calib.geometry.fold import find_kink
 from rtdefocus.calib.geometry.homography import line_crossings
 from rtdefocus.calib.geometry.stage import calibrate_geometry
@@ -113,16 +114,45 @@ def test_ridge_centres_are_sub_pixel_accurate(sigma):
 
 
 def test_stage_options_and_pattern_limits():
-    import inspect
+    from rtdefocus.calib.geometry.stage import OPTIONS, GeometryOptions
 
-    from rtdefocus.calib.geometry.stage import OPTIONS
-
-    params = inspect.signature(calibrate_geometry).parameters
-    assert set(OPTIONS) <= set(params), "every routed option must be a keyword of the stage"
+    # every field is an option of the stage; an unknown one is refused before any capture
+    pc = sim.VirtualProCam("flat", **SMALL)
+    cap = Capturer(pc)
+    with pytest.raises(InputError, match=r"unknown GeometryOptions options \['spacing'\]"):
+        calibrate_geometry(None, cap, spacing=8)
+    with pytest.raises(InputError, match="spacing"):
+        calibrate_geometry(None, cap, GeometryOptions(line_spacing=8, line_phases=4))
+    with pytest.raises(InputError, match="calib=None"):
+        calibrate_geometry(sim.oracle_calibration(pc), cap)
+    assert cap.total == 0 and "line_spacing" in OPTIONS
     with pytest.raises(InputError, match="spacing"):
         LinePatterns((800, 600), spacing=8, phases=4)
     with pytest.raises(InputError, match="too large"):
         LinePatterns((80, 60), spacing=48)
+
+
+def test_every_stage_has_one_contract():
+    """calibrate_X(calib, capture, options=None, **overrides): bad input refused before any
+    capture, with the stage's valid options or what to pass instead."""
+    import inspect
+
+    from rtdefocus.calib import STAGE_TABLE
+    from rtdefocus.errors import InputTypeError
+
+    pc = sim.VirtualProCam("flat", **SMALL)
+    cap, calib = Capturer(pc), sim.oracle_calibration(pc)
+    for name, st in STAGE_TABLE.items():
+        assert list(inspect.signature(st.run).parameters) == \
+            ["calib", "capture", "options", "overrides"], name
+        so_far = None if name == "geometry" else calib
+        with pytest.raises(InputError, match=rf"unknown {st.options.__name__} options \['nope'\]"):
+            st.run(so_far, cap, nope=1)
+        with pytest.raises(InputTypeError, match="capture must be a Capturer"):
+            st.run(so_far, pc)
+    with pytest.raises(InputTypeError, match="run the geometry stage first"):
+        STAGE_TABLE["psf"].run(None, cap)
+    assert cap.total == 0
 
 
 # --------------------------------------------------------------------------- kinks
@@ -319,12 +349,13 @@ def test_lens_distortion_is_not_a_kink():
 
     # undistort=False: the kink finder itself must not take the lens's bend for a fold (with
     # the lens taken out, as by default, the lines it sees are straight again).
-    flat = calibrate_geometry(Blind(sim.VirtualProCam("flat", **SMALL), distort), undistort=False)
+    flat = calibrate_geometry(None, Capturer(Blind(sim.VirtualProCam("flat", **SMALL), distort)),
+                              undistort=False)
     bend = _max_bend(flat.geometry_detail.detection.lines)
     assert bend > 2.0, f"the distortion should bend the lines visibly; max bend {bend:.2f} px"
     assert flat.n_planes == 1 and flat.meta["geometry"]["kinks"] == 0
     # and the same camera still finds the real fold of a corner
-    corner = calibrate_geometry(Blind(sim.VirtualProCam("cubicle", **SMALL), distort),
+    corner = calibrate_geometry(None, Capturer(Blind(sim.VirtualProCam("cubicle", **SMALL), distort)),
                                 undistort=False)
     assert corner.n_planes == 2 and corner.meta["geometry"]["fold_kinks"] >= 10
 
@@ -336,7 +367,7 @@ def test_lens_distortion_is_not_a_kink():
 ], ids=["gamma-ambient-darker", "gamma-ambient-brighter-camera-gamma"])
 def test_response_ambient_and_exposure_do_not_move_the_lines(kw):
     def crossings(**k):
-        c = calibrate_geometry(Blind(sim.VirtualProCam("cubicle", **SMALL, **k)))
+        c = calibrate_geometry(None, Capturer(Blind(sim.VirtualProCam("cubicle", **SMALL, **k))))
         proj, cam, _ = line_crossings(c.geometry_detail.detection.lines, SMALL["camera_size"])
         return {tuple(p): q for p, q in zip(proj, cam, strict=True)}
 
@@ -358,7 +389,7 @@ def test_no_projector_light_is_reported():
     pc = sim.VirtualProCam("cubicle", **SMALL)
     dark = pc.capture(np.zeros((300, 400, 3), np.uint8))
     with pytest.raises(CalibrationError, match="sees no projector light") as info:
-        calibrate_geometry(Blind(pc, lambda i, p, f: dark))
+        calibrate_geometry(None, Capturer(Blind(pc, lambda i, p, f: dark)))
     assert "camera looks at the projected area" in str(info.value)
 
 
@@ -366,7 +397,7 @@ def test_lines_that_cannot_be_found_are_reported():
     # a badly out-of-focus camera: the white and black frames are fine, the lines are mush
     blind = Blind(sim.VirtualProCam("cubicle", **SMALL), lambda i, p, f: cv2.GaussianBlur(f, (0, 0), 25))
     with pytest.raises(CalibrationError, match=r"only \d+ of the \d+ projected .* lines") as info:
-        calibrate_geometry(blind)
+        calibrate_geometry(None, Capturer(blind))
     assert "focus" in str(info.value)
 
 
@@ -375,7 +406,7 @@ def test_setup_moved_half_way_is_reported():
     blind = Blind(sim.VirtualProCam("cubicle", **SMALL),
                   lambda i, p, f: _shift(f, 5, 3) if i >= n // 2 else f)
     with pytest.raises(CalibrationError, match="moved during calibration"):
-        calibrate_geometry(blind)
+        calibrate_geometry(None, Capturer(blind))
 
 
 def test_setup_knocked_and_back_is_reported():
@@ -384,7 +415,7 @@ def test_setup_knocked_and_back_is_reported():
     blind = Blind(sim.VirtualProCam("cubicle", **SMALL),
                   lambda i, p, f: _shift(f, 6, 4) if 4 <= i < 8 else f)
     with pytest.raises(CalibrationError, match="inconsistent"):
-        calibrate_geometry(blind)
+        calibrate_geometry(None, Capturer(blind))
 
 
 # --------------------------------------------------------------------------- layout

@@ -20,6 +20,7 @@ from helpers import Blind, CountingProCam
 
 import rtdefocus as rd
 from rtdefocus import sim
+from rtdefocus.calib.capture import Capturer
 from rtdefocus.calib.geometry.fit import fit_geometry
 from rtdefocus.calib.geometry.fold import find_kink, find_kinks
 from rtdefocus.calib.geometry.stage import calibrate_geometry
@@ -34,7 +35,7 @@ ROOMS = ["u_cubicle", "corner_ceiling"]
 @functools.cache
 def _calibrated(preset: str, planes="auto"):
     pc = sim.VirtualProCam(preset, **SIZE)
-    return pc, calibrate_geometry(Blind(pc), planes=planes)
+    return pc, calibrate_geometry(None, Capturer(Blind(pc)), planes=planes)
 
 
 def _fit_again(calib, planes):
@@ -185,7 +186,7 @@ def test_a_room_knocked_and_back_is_not_explained_as_more_planes():
     blind = Blind(sim.VirtualProCam("u_cubicle", **SIZE),
                   lambda i, p, f: _shift(f, 6, 4) if 4 <= i < 8 else f)
     with pytest.raises(CalibrationError, match="inconsistent|moved"):
-        calibrate_geometry(blind)
+        calibrate_geometry(None, Capturer(blind))
 
 
 def test_cli_calibrate_takes_planes(tmp_path, monkeypatch, capsys):

@@ -18,7 +18,7 @@ PROJ = (160, 120)
 
 
 def _lit(frame, rect=(0.15, 0.1, 0.7, 0.8)):
-    """Mean gray level inside the projected area of a fake camera frame (inner part)."""
+    """Mean grey level inside the projected area of a fake camera frame (inner part)."""
     h, w = frame.shape[:2]
     x, y, rw, rh = rect
     return float(frame[int((y + 0.2 * rh) * h):int((y + 0.8 * rh) * h),
@@ -230,6 +230,39 @@ def test_lock_is_reapplied_after_a_stream_restart(caplog):
         assert dev.cap.props[cv2.CAP_PROP_AUTO_EXPOSURE] == 1.0, "controls re-applied"
         assert dev.cap.props[cv2.CAP_PROP_EXPOSURE] == pc.controls.applied["exposure"]
         assert "re-applied after the stream restart" in caplog.text
+
+
+def test_a_dead_camera_fails_after_a_bounded_number_of_reads(monkeypatch):
+    """Read failures are retried in one place, the Camera: a camera that never delivers fails
+    a calibration capture after ``retries + 1`` reads and one stream re-open, as one
+    CaptureError; neither HardwareProCam nor the Capturer tries again on top."""
+    from hardware_fakes import FakeCapture
+
+    from rtdefocus.calib.capture import Capturer
+
+    pc, _, dev = _procam(camera={"delay": 0.0}, average=2, verify=False, retries=3)
+    calls = {"read": 0, "grab": 0}
+
+    def dead(kind, result):
+        def attempt(self):
+            calls[kind] += 1
+            return result
+        return attempt
+
+    monkeypatch.setattr(FakeCapture, "read", dead("read", (False, None)))
+    monkeypatch.setattr(FakeCapture, "grab", dead("grab", False))
+    with pc:
+        cap = Capturer(pc)
+        cap.begin("geometry", 2)
+        opened = len(dev.opened)
+        for n in (1, 2):
+            with pytest.raises(CaptureError, match="capture 1 of stage geometry: camera 0 "
+                                                   "delivered no frame in 4 attempts") as info:
+                cap(np.zeros((PROJ[1], PROJ[0], 3), np.uint8))
+            assert calls["read"] == 4 * n and calls["grab"] <= n, calls
+            assert len(dev.opened) == opened + n, "the stream is re-opened once per capture"
+            assert isinstance(info.value.__cause__, CaptureError)
+        assert pc.recaptured == 0 and cap.counts["geometry"] == 0
 
 
 def test_camera_source_shares_the_helper():

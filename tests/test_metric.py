@@ -84,8 +84,8 @@ def rel_err(a, b) -> float:
 def test_ycbcr_is_bt601_and_invertible(rng):
     white = np.ones((3, 1, 1))
     assert np.allclose(rgb_to_ycbcr(white)[:, 0, 0], [1.0, 0.0, 0.0], atol=1e-6)
-    gray = np.full((3, 1, 1), 0.25)
-    assert np.allclose(rgb_to_ycbcr(gray)[:, 0, 0], [0.25, 0.0, 0.0], atol=1e-6)
+    grey = np.full((3, 1, 1), 0.25)
+    assert np.allclose(rgb_to_ycbcr(grey)[:, 0, 0], [0.25, 0.0, 0.0], atol=1e-6)
     img = rng.random((3, 5, 7))
     assert np.allclose(ycbcr_to_rgb(rgb_to_ycbcr(img)), img, atol=1e-6)
     assert np.allclose(M_RGB_TO_YCBCR[0], [0.299, 0.587, 0.114])

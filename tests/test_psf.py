@@ -231,8 +231,7 @@ def test_dense_layout_is_a_grid_per_plane():
 def test_unknown_layout_raises():
     res = calibrated("cubicle")
     with pytest.raises(InputError, match="layout"):
-        calibrate_psf(Blind(res.procam), res.calib, capture=Capturer(Blind(res.procam)),
-                      layout="sparse")
+        calibrate_psf(res.calib, Capturer(Blind(res.procam)), layout="sparse")
 
 
 # ----------------------------------------------------------------------------- convention
@@ -272,7 +271,7 @@ def test_measured_psf_is_the_dot_image_shifted_not_flipped(dot_size):
                         H_cam_from_proj=H[None], H_proj_from_cam=np.linalg.inv(H)[None],
                         fold_proj=np.zeros(3), fold_cam=np.zeros(3),
                         lit_polygon_cam=np.array([[0, 0], [289, 0], [289, 214], [0, 214.0]]))
-    calibrate_psf(procam, calib, capture=Capturer(procam), dot_size=dot_size, pilot_spacing=40)
+    calibrate_psf(calib, Capturer(procam), dot_size=dot_size, pilot_spacing=40)
     k = calib.psfs.shape[1]
     pad = (k - 11) // 2
     assert pad >= 0, f"window {k} smaller than the kernel"

@@ -373,8 +373,8 @@ def measured(preset: str):
     calib = truth_geometry(procam)
     blind = Blind(procam)
     cap = Capturer(blind)
-    calibrate_radiometry(blind, calib, capture=cap)
-    calibrate_psf(blind, calib, capture=cap)
+    calibrate_radiometry(calib, cap)
+    calibrate_psf(calib, cap)
     return procam, calib
 
 

@@ -104,10 +104,8 @@ def test_camera_gamma_option(camera_gamma_procam):
     is recovered; assuming a linear camera instead gives a clearly wrong one (documented)."""
     procam = camera_gamma_procam
     cap = Capturer(Blind(procam))      # shared: the second run reuses the black and white frames
-    known = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap,
-                                 camera_gamma=1.8)
-    assumed = calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=cap,
-                                   camera_response="linear")
+    known = calibrate_radiometry(truth_geometry(procam), cap, camera_gamma=1.8)
+    assumed = calibrate_radiometry(truth_geometry(procam), cap, camera_response="linear")
     assert cap.counts["radiometry"] == 7
     g_known = np.mean(known.meta["radiometry"]["gamma"])
     g_assumed = np.mean(assumed.meta["radiometry"]["gamma"])
@@ -161,7 +159,7 @@ def test_projector_off_raises():
                         fold_proj=np.zeros(3), fold_cam=np.zeros(3),
                         lit_polygon_cam=np.array([[0, 0], [199, 0], [199, 149], [0, 149.0]]))
     with pytest.raises(CalibrationError, match="brighter"):
-        calibrate_radiometry(procam, calib, capture=Capturer(procam))
+        calibrate_radiometry(calib, Capturer(procam))
 
 
 @pytest.mark.slow
@@ -169,15 +167,15 @@ def test_camera_clipping_raises():
     import rtdefocus as rd
     procam = rd.sim.VirtualProCam("cubicle", exposure=3.0)
     with pytest.raises(CalibrationError, match="exposure"):
-        calibrate_radiometry(Blind(procam), truth_geometry(procam), capture=Capturer(Blind(procam)))
+        calibrate_radiometry(truth_geometry(procam), Capturer(Blind(procam)))
 
 
 def test_bad_options_raise():
     procam = _DarkProCam()
     with pytest.raises(InputError, match="response_model"):
-        calibrate_radiometry(procam, None, capture=Capturer(procam), response_model="spline")
+        calibrate_radiometry(None, Capturer(procam), response_model="spline")
     with pytest.raises(InputError, match="ramp_levels"):
-        calibrate_radiometry(procam, None, capture=Capturer(procam), ramp_levels=[300])
+        calibrate_radiometry(None, Capturer(procam), ramp_levels=[300])
 
 
 @pytest.mark.slow
@@ -193,7 +191,7 @@ def test_albedo_through_a_barrel_lens_on_a_woven_wall():
                            camera_size=(480, 360))
     calib = truth_geometry(pc)
     assert calib.camera_distortion[0] == -0.05
-    out = calibrate_radiometry(Blind(pc), calib, capture=Capturer(Blind(pc)))
+    out = calibrate_radiometry(calib, Capturer(Blind(pc)))
     truth = pc.truth
     m = _interior(truth, int(np.ceil(truth.radius_map.max())) + 2)
     rel = (np.abs(out.albedo_proj - truth.albedo_proj) / truth.albedo_proj)[m]

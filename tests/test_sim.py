@@ -406,10 +406,10 @@ def test_prewarped_checker_is_rectangular(preset):
     pat = np.repeat(np.rint(255 * acc / ss ** 2).astype(np.uint8)[..., None], 3, axis=2)
     # The rect straddles the fold, so the test covers the stitch.
     assert fold_dist(t.fold_cam, x0, y0) < 0 < fold_dist(t.fold_cam, x0 + nx * s, y0)
-    gray = cv2.cvtColor(pc.capture(pat, sharp=True), cv2.COLOR_RGB2GRAY)
-    found, corners = cv2.findChessboardCorners(gray, (nx, ny))
+    grey = cv2.cvtColor(pc.capture(pat, sharp=True), cv2.COLOR_RGB2GRAY)
+    found, corners = cv2.findChessboardCorners(grey, (nx, ny))
     assert found, "chessboard not found in the sharp capture"
-    corners = cv2.cornerSubPix(gray, corners, (9, 9), (-1, -1),
+    corners = cv2.cornerSubPix(grey, corners, (9, 9), (-1, -1),
                                (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)).reshape(-1, 2)
     expect = np.array([(x0 + i * s, y0 + j * s) for j in range(1, ny + 1) for i in range(1, nx + 1)])
     # Corner order may start at either end: match each found corner to the nearest expected one.

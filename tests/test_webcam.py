@@ -58,7 +58,7 @@ def test_webcam_preset_combines_the_room_and_the_camera():
     assert plain.truth.distortion == (0.0, 0.0) and plain.noise == 0.006
     with pytest.raises(InputError, match="unknown webcam scene"):
         sim.VirtualProCam("webcam_attic", **SMALL)
-    # a sharp mid-gray capture is sRGB-encoded: decoding it gives the linear model's value
+    # a sharp mid-grey capture is sRGB-encoded: decoding it gives the linear model's value
     p = sim.VirtualProCam("webcam", noise=0.0, texture=0.0, distortion=(0.0, 0.0), **SMALL)
     frame = p.capture(np.full((240, 320, 3), 128, np.uint8), sharp=True)
     lit = p.truth.extra["camera_in_frame"]
@@ -217,7 +217,7 @@ def _radiometry(**kw):
 
     pc = sim.VirtualProCam("webcam", distortion=(0.0, 0.0), **kw, **SMALL)
     calib = truth_geometry(pc)
-    return calibrate_radiometry(pc, calib, capture=Capturer(pc))
+    return calibrate_radiometry(calib, Capturer(pc))
 
 
 @pytest.mark.slow
@@ -350,10 +350,11 @@ def test_radial_k1_and_k2_together_from_straight_lines():
 @pytest.mark.slow
 @pytest.mark.parametrize("k1", [-0.05, 0.0])
 def test_geometry_reports_the_lens_k1(k1):
+    from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", distortion=(k1, 0.0), **SMALL)
-    d = calibrate_geometry(pc).meta["geometry"]["distortion"]
+    d = calibrate_geometry(None, Capturer(pc)).meta["geometry"]["distortion"]
     assert abs(d["k1"] - k1) < 0.01, d
     assert d["applied"] == (k1 != 0.0), d        # an ideal lens is left alone
     assert d["k2"] == 0.0, d                     # k2 fits only the noise here: not kept
@@ -362,10 +363,11 @@ def test_geometry_reports_the_lens_k1(k1):
 def test_geometry_fits_k2_when_it_explains_the_misfit():
     """A lens with k2 = -0.05: k1 alone leaves ~40 % more misfit than k1 and k2 together, so
     the stage keeps both, recovers them, and takes them out (the calibration's lens)."""
+    from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", distortion=(-0.03, -0.05), **SMALL)
-    cal = calibrate_geometry(pc)
+    cal = calibrate_geometry(None, Capturer(pc))
     d = cal.meta["geometry"]["distortion"]
     assert d["applied"] and abs(d["k1"] + 0.03) < 0.005 and abs(d["k2"] + 0.05) < 0.01, d
     assert d["rms_px_k12"] < 0.9 * d["rms_px_k1_only"], d
@@ -392,13 +394,14 @@ def _homography_error(calib, truth) -> float:
 def test_geometry_is_in_ideal_camera_pixels():
     """With the lens taken out, the homographies match the truth's (ideal pixels) to a tenth of
     a pixel; left in (undistort=False) they are off by more than half a pixel."""
+    from rtdefocus.calib.capture import Capturer
     from rtdefocus.calib.geometry.stage import calibrate_geometry
 
     pc = sim.VirtualProCam("webcam", **SMALL)
-    fixed = calibrate_geometry(pc)
+    fixed = calibrate_geometry(None, Capturer(pc))
     assert abs(fixed.camera_distortion[0] + 0.05) < 0.003 and fixed.camera_distortion[1] == 0
     err = _homography_error(fixed, pc.truth)
-    raw = calibrate_geometry(pc, undistort=False)
+    raw = calibrate_geometry(None, Capturer(pc), undistort=False)
     assert raw.camera_distortion is not None and not np.any(raw.camera_distortion)
     err_raw = _homography_error(raw, pc.truth)
     assert err < 0.25 < 0.5 < err_raw, (err, err_raw)       # measured 0.13 and ~2.5

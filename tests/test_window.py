@@ -182,7 +182,7 @@ def test_player_in_window_with_injected_keys(display, tmp_path):
 
 # --------------------------------------------------------------------------- hardware
 def _camera_file(path: Path, n: int, size=(160, 120), step=10) -> Path:
-    """A video whose frame i is uniformly gray at ``step * i``: a camera with a known history."""
+    """A video whose frame i is uniformly grey at ``step * i``: a camera with a known history."""
     w, h = size
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (w, h))
     assert writer.isOpened()
@@ -254,7 +254,7 @@ def test_hardware_procam_stops_on_q(display, tmp_path):
         pattern = np.zeros((24, 32, 3), np.uint8)
         pc.capture(pattern)
         win.inject_key("q")
-        for _ in range(2):              # sticky: a retrying caller does not carry on
+        for _ in range(2):              # sticky: a later capture is refused too
             with pytest.raises(CaptureError, match="stopped from the projector window"):
                 pc.capture(pattern)
 

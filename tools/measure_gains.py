@@ -139,7 +139,7 @@ def section_radiometry() -> None:
         calib = truth_geometry(pc)
         if not lens:
             calib.camera_distortion = np.zeros(2)
-        out = calibrate_radiometry(Blind(pc), calib, capture=Capturer(Blind(pc)))
+        out = calibrate_radiometry(calib, Capturer(Blind(pc)))
         t = pc.truth
         r = int(np.ceil(t.radius_map.max())) + 2
         m = np.zeros(t.radius_map.shape, bool)

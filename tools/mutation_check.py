@@ -91,7 +91,7 @@ MUTATIONS = [
              "num = (frames[i][sl] - black_p[sl])[m].sum(axis=0)",
              "num = frames[i][sl][m].sum(axis=0)",
              ("tests/test_radiometry.py::test_albedo_through_a_barrel_lens_on_a_woven_wall",),
-             "the room light is left in the gray ramp's ratios"),
+             "the room light is left in the grey ramp's ratios"),
     Mutation("drop-response-lut", "radiometry", "rtdefocus/compensate/compensator.py",
              "self._lut = np.asarray(calib.lut, dtype=np.float32)",
              "self._lut = np.tile(np.linspace(0, 1, 256, dtype=np.float32), (3, 1))",

@@ -26,7 +26,14 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Stage:
-    """One calibration stage: the function that runs it and the dataclass of its options."""
+    """One calibration stage: the function that runs it and the dataclass of its options.
+
+    Every stage has the same contract, ``run(calib, capture, options=None, **overrides) ->
+    Calibration``: it takes the calibration so far (None for the first stage, geometry, which
+    makes it), the :class:`Capturer` (the ProCam, the counts, the frame cache the stages
+    share) and its options (an instance of ``options``, keyword overrides checked against its
+    fields), and returns the calibration with its part filled.
+    """
 
     run: Callable[..., Calibration]
     options: type
@@ -105,16 +112,13 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
     for name, st in chosen.items():
         t0 = time.perf_counter()
         try:
-            if name == "geometry":
-                calib = st.run(procam, capture=cap, **per_stage[name])
-                if "radiometry" not in chosen:
-                    # The radiometry stage checks the geometry stage's drift with the camera's
-                    # measured response; without it, the stage's own first and last white.
-                    drift = check_geometry_drift(cap, calib)
-                    calib.meta["geometry"]["white_drift"] = \
-                        None if drift is None else np.round(drift, 4).tolist()
-            else:
-                st.run(procam, calib, capture=cap, **per_stage[name])
+            calib = st.run(calib, cap, **per_stage[name])
+            if name == "geometry" and "radiometry" not in chosen:
+                # The radiometry stage checks the geometry stage's drift with the camera's
+                # measured response; without it, the stage's own first and last white.
+                drift = check_geometry_drift(cap, calib)
+                calib.meta["geometry"]["white_drift"] = \
+                    None if drift is None else np.round(drift, 4).tolist()
         except CalibrationError as exc:
             # Dots or lines not found are symptoms; name the likely cause (moved set-up,
             # changed light, partial view) when a quick check finds one.

@@ -1,16 +1,14 @@
-"""Counting, retrying, progress-reporting wrapper around ``ProCam.capture`` for calibration."""
+"""Counting, checking, progress-reporting wrapper around ``ProCam.capture`` for calibration."""
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import CaptureError, InputError
+from ..errors import CaptureError, InputError, InputTypeError
 from ..procam import ProCam, check_pattern
-
-log = logging.getLogger(__name__)
+from .file import Calibration
 
 # progress(stage, done, total): the CLI turns it into a progress bar; the library never prints.
 ProgressFn = Callable[[str, int, int], None]
@@ -19,18 +17,21 @@ ProgressFn = Callable[[str, int, int], None]
 class Capturer:
     """Calls ``procam.capture`` for the calibration stages.
 
-    Counts captures per stage (``counts``), checks each returned frame, retries a failed one
-    ``retries`` times and then raises :class:`CaptureError` naming the pattern and the cause.
+    Counts captures per stage (``counts``) and checks each returned frame. It does not retry:
+    a failed camera read is retried where it happens (:meth:`rtdefocus.hardware.Camera.read`,
+    ``retries``), a frame that does not show the pattern is taken again by the ProCam that
+    can tell (:class:`rtdefocus.hardware.HardwareProCam`, ``recaptures``). A capture that
+    fails, or returns a frame of the wrong shape or type, is one :class:`CaptureError` naming
+    the stage, the pattern and the cause.
     """
 
-    def __init__(self, procam: ProCam, progress: ProgressFn | None = None, retries: int = 2):
+    def __init__(self, procam: ProCam, progress: ProgressFn | None = None):
         for attr in ("projector_size", "camera_size", "capture"):
             if not hasattr(procam, attr):
                 raise InputError(f"{type(procam).__name__} is not a ProCam: it has no {attr!r} "
                                  "(see rtdefocus.ProCam)")
         self.procam = procam
         self.progress = progress
-        self.retries = retries
         self.counts: dict[str, int] = {}
         #: The first all-white and all-black frames of the calibration (uint8), kept as the
         #: reference :mod:`.diagnose` compares fresh frames with when a stage fails.
@@ -66,22 +67,17 @@ class Capturer:
     def __call__(self, pattern: np.ndarray) -> np.ndarray:
         pattern = check_pattern(pattern, self.procam.projector_size)
         wc, hc = self.procam.camera_size
-        last: Exception | None = None
-        for attempt in range(self.retries + 1):
-            try:
-                frame = np.asarray(self.procam.capture(pattern))
-                if frame.shape != (hc, wc, 3) or frame.dtype != np.uint8:
-                    raise CaptureError(f"camera returned {frame.shape} {frame.dtype}, expected "
-                                       f"({hc}, {wc}, 3) uint8")
-                break
-            except Exception as exc:  # a camera read can fail transiently: retry, then report
-                last = exc
-                log.warning("capture %d of stage %s failed (attempt %d): %s",
-                            self._done + 1, self.stage, attempt + 1, exc)
-        else:
-            raise CaptureError(f"capture failed {self.retries + 1} times during {self.stage} "
-                               f"(pattern {self._done + 1}): {last}. Check the camera connection "
-                               "and that nothing else is using it.") from last
+        where = f"capture {self._done + 1} of stage {self.stage}"
+        try:
+            frame = np.asarray(self.procam.capture(pattern))
+        except CaptureError as exc:     # already says what to check
+            raise CaptureError(f"{where}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 -- any ProCam's failure, reported as one error
+            raise CaptureError(f"{where} failed: {exc}. Check the camera connection and that "
+                               "nothing else is using it.") from exc
+        if frame.shape != (hc, wc, 3) or frame.dtype != np.uint8:
+            raise CaptureError(f"{where}: the camera returned {frame.shape} {frame.dtype}, "
+                               f"expected ({hc}, {wc}, 3) uint8 (ProCam.camera_size)")
         if pattern.min() == 255:
             self.last_white = frame.copy()
             if self.first_white is None:
@@ -119,3 +115,18 @@ class Capturer:
     def frame_count(self, key: str) -> int:
         """How many captures the kept mean ``key`` holds (0 if none)."""
         return self._frames.get(key, (0, None))[0]
+
+
+def check_capturer(capture) -> Capturer:
+    """``capture`` if it is a :class:`Capturer`, else an InputTypeError saying how to make one."""
+    if not isinstance(capture, Capturer):
+        raise InputTypeError(f"capture must be a Capturer (rtdefocus.calib.Capturer(procam)); "
+                             f"got {type(capture).__name__}")
+    return capture
+
+
+def check_geometry(calib: Calibration, stage: str) -> None:
+    """InputTypeError unless ``calib`` is a Calibration (the geometry stage's result)."""
+    if not isinstance(calib, Calibration):
+        raise InputTypeError(f"the {stage} stage fills a Calibration with its geometry: run the "
+                             f"geometry stage first; got {type(calib).__name__}")

@@ -54,7 +54,8 @@ def aim_pattern(kind: str, projector_size: tuple[int, int]) -> np.ndarray:
     return np.repeat((on * 255).astype(np.uint8)[:, :, None], 3, axis=2)
 
 
-def _gray(img: np.ndarray) -> np.ndarray:
+def _luma(img: np.ndarray) -> np.ndarray:
+    """Luma (OpenCV's weighted grey, uint8) of an RGB frame; a single-channel one as it is."""
     img = np.asarray(img)
     return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
 
@@ -84,9 +85,9 @@ def find_projected_area(lit: np.ndarray, dark: np.ndarray | None = None) -> Proj
     """The projected area from a camera frame of a white screen (``lit``), less one of a black
     screen (``dark``) where there is one: Otsu's threshold, the largest component, holes
     filled. None when nothing stands out (the camera does not see the projection)."""
-    g = _gray(lit).astype(np.int16)
+    g = _luma(lit).astype(np.int16)
     if dark is not None:
-        g = g - _gray(dark).astype(np.int16)
+        g = g - _luma(dark).astype(np.int16)
     g = np.clip(g, 0, 255).astype(np.uint8)
     g = cv2.GaussianBlur(g, (5, 5), 0)
     if int(g.max()) - int(g.min()) < 20:
@@ -175,7 +176,7 @@ def focus_reading(frame: np.ndarray, region: np.ndarray, *, cell_camera_px: floa
 def focus_readings(frame: np.ndarray, regions: list[np.ndarray], *, cell_camera_px: float,
                    projector_per_camera: float = 1.0, min_edges: int = 30) -> list[FocusReading]:
     """:func:`focus_reading` for several regions of one frame (the edge fields computed once)."""
-    g = _gray(frame).astype(np.float32)
+    g = _luma(frame).astype(np.float32)
     half = max(2, int(round(cell_camera_px)))
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * half + 1, 2 * half + 1))
     contrast = cv2.dilate(g, kernel) - cv2.erode(g, kernel)

@@ -45,7 +45,9 @@ class HardwareProCam:
     average : int
         Frames averaged per capture (less noise).
     retries : int
-        Extra attempts for each failed camera read (the stream is re-opened half way).
+        Extra attempts for each failed camera read, made by :class:`~.camera.Camera` (the
+        stream is re-opened half way): the only place a read is retried, so a dead camera
+        fails a capture after ``retries + 1`` reads with one :class:`CaptureError`.
     camera_size : (width, height), optional
         Resolution to ask for (:attr:`camera_size` is what it delivers).
     fourcc : str, optional
@@ -238,7 +240,7 @@ class HardwareProCam:
         if self.window is None or self.window.should_close:
             raise CaptureError("the projector window was closed; calibration stopped")
         if {"escape", "q", "close"} & set(self.window.poll()):
-            self._stopped = True          # sticky: a retrying caller must not show the next one
+            self._stopped = True          # sticky: no later capture shows a pattern either
         if self._stopped:
             raise CaptureError("stopped from the projector window (q/Esc)")
         for attempt in range(self.recaptures + 1):

@@ -36,7 +36,7 @@ class Latency:
     """Result of :func:`measure_latency` (seconds, camera levels 0..255)."""
 
     seconds: float
-    black: np.ndarray          # (Hc, Wc) gray float32 camera frame of a black projector
+    black: np.ndarray          # (Hc, Wc) grey float32 camera frame of a black projector
     white: np.ndarray          # (Hc, Wc) same, white
     trace: list                # [(t since the swap, mean level), ...]
 

@@ -123,7 +123,7 @@ def check_image(image) -> np.ndarray:
         if img.size == 0:
             fix = "nothing: the array is empty; check how the frame was read"
         elif img.ndim == 2:
-            fix = "a gray image: np.dstack([img] * 3)"
+            fix = "a grey image: np.dstack([img] * 3)"
         elif img.ndim == 3 and img.shape[2] == 4:
             fix = "RGBA: drop alpha with img[..., :3]"
         elif img.ndim == 3 and img.shape[2] == 3 and img.dtype.kind == "f":

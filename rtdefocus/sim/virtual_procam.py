@@ -544,7 +544,7 @@ class VirtualProCam(SetupChanges):
 
         Parameters
         ----------
-        pattern : (Hp, Wp, 3) uint8 RGB projector image (a (Hp, Wp) gray one is expanded).
+        pattern : (Hp, Wp, 3) uint8 RGB projector image (a (Hp, Wp) grey one is expanded).
         sharp : render the ideal in-focus display: no blur and no noise, all else equal.
 
         Returns

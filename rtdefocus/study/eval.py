@@ -115,7 +115,7 @@ def calibrate_layouts(procam, layouts=tuple(EVAL_LAYOUTS), progress=None) -> tup
     t1 = time.perf_counter()
     cap = Capturer(procam, progress)
     keys = [EVAL_LAYOUTS[name] for name in layouts]
-    measured = calibrate_psf_layouts(procam, copy.deepcopy(base), capture=cap, layouts=keys)
+    measured = calibrate_psf_layouts(copy.deepcopy(base), cap, layouts=keys)
     t2 = time.perf_counter()
     calibs = {name: measured[key] for name, key in zip(layouts, keys, strict=True)}
     info = {

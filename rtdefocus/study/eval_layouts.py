@@ -18,18 +18,17 @@ from ..calib.psf import PsfOptions, PsfRun, psf_options
 __all__ = ["calibrate_psf_layouts"]
 
 
-def calibrate_psf_layouts(procam, calib: Calibration, *, capture: Capturer,
-                          layouts=(("default", False),), options: PsfOptions | None = None,
+def calibrate_psf_layouts(calib: Calibration, capture: Capturer,
+                          options: PsfOptions | None = None, *, layouts=(("default", False),),
                           **overrides) -> dict:
     """:func:`rtdefocus.calib.psf.calibrate_psf` for several ``(layout, cross_fold)``, measured
     together.
 
     Parameters
     ----------
-    procam : ProCam (only used through ``capture``)
     calib : Calibration with the geometry section; the first layout fills it, the others are
         filled into copies.
-    capture : Capturer (stage ``"psf"``).
+    capture : Capturer (the ProCam, counts, frame cache; stage ``"psf"``).
     layouts : sequence of ``(layout, cross_fold)``.
     options, **overrides : as for ``calibrate_psf`` (``layout`` and ``cross_fold`` are ignored:
         ``layouts`` says which).

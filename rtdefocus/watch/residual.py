@@ -149,7 +149,7 @@ def _coarse_shift(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> tuple[np.ndarr
 
 def _plane_shift(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray,
                  iterations: int = 6) -> tuple[np.ndarray, float]:
-    """(dx, dy) such that ``obs(x) ≈ gain · pred(x − d) + offset`` inside ``mask`` (gray
+    """(dx, dy) such that ``obs(x) ≈ gain · pred(x − d) + offset`` inside ``mask`` (grey
     images), and the phase correlation peak of the whole-pixel start."""
     ys, xs = np.nonzero(mask)
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1

@@ -24,9 +24,9 @@ import time
 from dataclasses import dataclass, fields
 
 from ...errors import CalibrationError, InputError
-from ...procam import ProCam
-from ..capture import Capturer
+from ..capture import Capturer, check_capturer
 from ..file import Calibration
+from ..options import stage_options
 from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import fit_with_lens
@@ -80,7 +80,6 @@ class GeometryOptions:
 
 #: names of the stage's options (the fields of :class:`GeometryOptions`).
 OPTIONS = tuple(f.name for f in fields(GeometryOptions))
-_D = GeometryOptions()
 #: The inlier distance of the second, nearly-flat fit, as a multiple of ``ransac_threshold``:
 #: walls a few camera px off a plane stay one plane each, their residual fields take the rest.
 NEARLY_FLAT_FACTOR = 4.0
@@ -89,29 +88,27 @@ NEARLY_FLAT_FACTOR = 4.0
 NEARLY_FLAT_INLIERS = 0.9
 
 
-def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
-                       line_spacing: int = _D.line_spacing, line_phases: int = _D.line_phases,
-                       line_width: int = _D.line_width, samples: int = _D.samples,
-                       min_kink_deg: float = _D.min_kink_deg, fold_band: float | None = _D.fold_band,
-                       ransac_threshold: float = _D.ransac_threshold,
-                       undistort: bool = _D.undistort, planes: int | str = _D.planes,
-                       residual: bool = _D.residual) -> Calibration:
+def calibrate_geometry(calib: Calibration | None, capture: Capturer,
+                       options: GeometryOptions | None = None, **overrides) -> Calibration:
     """Learn the set-up's geometry through ``capture`` only.
 
     Parameters
     ----------
-    procam : ProCam
-    capture : the calibration's :class:`Capturer` (counts, retries, progress); a fresh one
-        when None.
-    line_spacing, line_phases, line_width, samples, min_kink_deg, fold_band, ransac_threshold,
-    undistort, planes, residual : see :class:`GeometryOptions` (their defaults are its
-    defaults).
+    calib : None
+        The calibration so far: none, this stage makes it.
+    capture : Capturer
+        The calibration's capturer (the ProCam, counts, progress, frame cache).
+    options : GeometryOptions, optional
+        The stage's options (default: :class:`GeometryOptions`' defaults).
+    **overrides
+        Fields of :class:`GeometryOptions` (``line_spacing=32``, ``planes=2``, ...) replacing
+        those of ``options``.
 
     Returns
     -------
     Calibration
-        Geometry section filled, in ideal camera pixels with ``camera_distortion`` (k1, k2) the
-        lens; ``meta["geometry"]`` holds the statistics (``n_planes``,
+        A new one, geometry section filled, in ideal camera pixels with ``camera_distortion``
+        (k1, k2) the lens; ``meta["geometry"]`` holds the statistics (``n_planes``,
         ``rms_px`` and ``inliers`` per plane, ``folds`` (per fold: planes, kinks, kink RMS,
         disagreement), ``fold_disagreement_px`` (the largest), ``candidates`` (the model
         selection's evidence), ``captures``, lines and kinks).
@@ -120,18 +117,27 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
 
     Raises
     ------
+    InputError
+        ``calib`` is not None, or an option is unknown or out of range (before any capture).
     CalibrationError
         The camera sees no projector light, the lines cannot be found, or the correspondences
         are inconsistent (the set-up moved), or ``planes`` forces a count the crossings
         contradict; the message says what was seen and what to check.
     """
     t_start = time.perf_counter()
-    cap = capture if capture is not None else Capturer(procam)
+    if calib is not None:
+        raise InputError("the geometry stage makes the calibration, it fills none: pass "
+                         "calib=None")
+    check_capturer(capture)
+    o = stage_options(GeometryOptions, options, **overrides)
+    samples, planes, residual = o.samples, o.planes, o.residual
+    ransac_threshold, min_kink_deg = o.ransac_threshold, o.min_kink_deg
+    cap, procam = capture, capture.procam
     if int(samples) < 1:
         raise InputError(f"samples must be >= 1; got {samples}")
     check_planes_option(planes)          # before any capture
-    pats = LinePatterns(tuple(procam.projector_size), int(line_spacing), int(line_phases),
-                        int(line_width))
+    pats = LinePatterns(tuple(procam.projector_size), int(o.line_spacing), int(o.line_phases),
+                        int(o.line_width))
     seq = pats.sequence()
     cap.begin("geometry", len(seq) * int(samples))
     det = LineDetector(pats)
@@ -140,7 +146,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
         det.add(name, frame)
     detection = det.result()
     camera_size = tuple(procam.camera_size)
-    band = float(fold_band) if fold_band is not None else float(det.half)
+    band = float(o.fold_band) if o.fold_band is not None else float(det.half)
 
     def fit(detection: LineDetection, threshold: float = ransac_threshold,
             disagreement: float = MAX_FOLD_DISAGREEMENT, min_residual_inliers: float = 0.0
@@ -152,15 +158,15 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
                                             residual_threshold=ransac_threshold,
                                             min_residual_inliers=min_residual_inliers,
                                             fold_band=band, ransac_threshold=threshold)
-        options = {"line_spacing": pats.spacing, "line_phases": pats.phases,
+        used = {"line_spacing": pats.spacing, "line_phases": pats.phases,
                    "line_width": pats.width, "samples": int(samples), "min_kink_deg": min_kink_deg,
                    "fold_band": band, "ransac_threshold": threshold, "planes": planes,
                    "residual": bool(residual)}
-        return _calibration(parts, stats, detail, pats, options, t_start)
+        return _calibration(parts, stats, detail, pats, used, t_start)
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
     try:
-        return fit_with_lens(fit, detection, camera_size, correct=bool(undistort),
+        return fit_with_lens(fit, detection, camera_size, correct=bool(o.undistort),
                              rough=lambda d: fit(d, 4.0 * ransac_threshold))
     except CalibrationError as exc:
         if not residual:
@@ -174,7 +180,7 @@ def calibrate_geometry(procam: ProCam, *, capture: Capturer | None = None,
             calib = fit_with_lens(
                 lambda d: fit(d, loose, NEARLY_FLAT_FACTOR * MAX_FOLD_DISAGREEMENT,
                               NEARLY_FLAT_INLIERS), detection, camera_size,
-                correct=bool(undistort))
+                correct=bool(o.undistort))
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}

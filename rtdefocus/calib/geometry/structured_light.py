@@ -292,7 +292,7 @@ class LineDetection:
     ----------
     lines : list of :class:`DetectedLine` ("v" and "h").
     expected : {"v": n, "h": n} lines projected per family.
-    white, black : (Hc, Wc) float32 gray camera frames (code values).
+    white, black : (Hc, Wc) float32 grey camera frames (code values).
     valid : (Hc, Wc) bool, pixels lit well enough to measure.
     white_rgb : (Hc, Wc, 3) uint8 camera view of the white frame.
     stats : dict of numbers for the log and ``meta``.
@@ -342,19 +342,19 @@ class LineDetector:
     # ------------------------------------------------------------------ feeding
     def add(self, name: str, frame: np.ndarray) -> None:
         """Hand over the capture of pattern ``name`` ((Hc, Wc, 3) uint8 or float codes)."""
-        gray = to_grey(frame)
+        grey = to_grey(frame)
         if name == "black":
-            self.black = gray
+            self.black = grey
         elif name == "white":
-            self.white = gray
+            self.white = grey
             self.white_rgb = np.clip(np.asarray(frame), 0, 255).astype(np.uint8)
             self._check_light()
         elif name == "white_end":
-            self._check_stable(gray)
+            self._check_stable(grey)
         elif name[0] in "vh" and name[1:].isdigit():
-            self._add_lines(name[0], int(name[1:]), gray)
+            self._add_lines(name[0], int(name[1:]), grey)
         elif name[0] == "g" and name[1] in "vh":
-            nrm = normalise(gray, self.black, self.white, self.valid)
+            nrm = normalise(grey, self.black, self.white, self.valid)
             self._bits[name[1]].append(nrm > 0.5)
         else:
             raise InputError(f"unknown geometry pattern name {name!r}")
@@ -409,7 +409,7 @@ class LineDetector:
                 "from the one at the start. Fix the camera and the projector firmly (tripod, no "
                 "auto-focus or image stabilisation), keep the room still, and calibrate again.")
 
-    def _add_lines(self, axis: str, phase: int, gray: np.ndarray) -> None:
+    def _add_lines(self, axis: str, phase: int, grey: np.ndarray) -> None:
         if self.valid is None:
             raise InputError("the black and white frames must be captured before the line patterns")
         if self._ridge_white is None:
@@ -421,7 +421,7 @@ class LineDetector:
             diff = np.where(self.valid, self.white - self.black, 0).astype(np.float32)
             wide = cv2.dilate(diff, np.ones((k, k), np.uint8))
             self._ridge_white = self.black + np.maximum(wide, self.white - self.black)
-        nrm = normalise(gray, self.black, self._ridge_white, self.valid)
+        nrm = normalise(grey, self.black, self._ridge_white, self.valid)
         if axis == "h":   # horizontal lines: scan the columns of the transposed image
             rows, cols, pk = find_ridge_points(np.ascontiguousarray(nrm.T),
                                                np.ascontiguousarray(self.valid.T), self.half,

@@ -70,14 +70,14 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from ...checks import check_choice
-from ...errors import InputError
-from ..capture import Capturer
+from ..capture import Capturer, check_capturer, check_geometry
 from ..file import Calibration
+from ..options import stage_options
 from ..radiometry.stage import linearize_camera
 from .diagnostics import psf_diagnostics, radius_map
 from .dots import (
@@ -166,11 +166,8 @@ OPTIONS = tuple(f.name for f in fields(PsfOptions))
 
 def psf_options(options: PsfOptions | None = None, **overrides) -> PsfOptions:
     """``options`` (default: the defaults) with keyword ``overrides``; InputError naming the
-    valid options for an unknown one."""
-    unknown = sorted(set(overrides) - set(OPTIONS))
-    if unknown:
-        raise InputError(f"unknown PSF options {unknown}; valid: {sorted(OPTIONS)}")
-    return replace(options if options is not None else PsfOptions(), **overrides)
+    valid options for an unknown one (:func:`~rtdefocus.calib.options.stage_options`)."""
+    return stage_options(PsfOptions, options, **overrides)
 
 
 @dataclass
@@ -469,16 +466,18 @@ def frame_normaliser(calib: Calibration, capture: Capturer, camera_lut=1.0):
     return normalise
 
 
-def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
-                  options: PsfOptions | None = None, **overrides) -> Calibration:
+def calibrate_psf(calib: Calibration, capture: Capturer, options: PsfOptions | None = None,
+                  **overrides) -> Calibration:
     """Measure the defocus kernels and build the kernel field F; fill ``calib``'s psf section.
 
     Parameters
     ----------
-    procam : ProCam (only used through ``capture``)
-    calib : Calibration with the geometry section (radiometry optional: its ``camera_lut``
-        linearises the frames); filled in place and returned.
-    capture : Capturer (stage ``"psf"``).
+    calib : Calibration
+        With the geometry section (radiometry optional: its ``camera_lut`` linearises the
+        frames); its psf section is filled in place and it is returned.
+    capture : Capturer
+        The calibration's capturer (the ProCam, counts, progress, frame cache; stage
+        ``"psf"``).
     options : PsfOptions, optional
         The stage's options (default: :class:`PsfOptions`' defaults).
     **overrides
@@ -493,7 +492,9 @@ def calibrate_psf(procam, calib: Calibration, *, capture: Capturer,
         sum, ``pix_idx`` (Hp, Wp, 4) int32, ``pix_wts`` (Hp, Wp, 4) float32, and
         ``meta["psf"]`` (layout, counts, radii, window).
     """
+    check_capturer(capture)
     o = psf_options(options, **overrides)
+    check_geometry(calib, "psf")
     key = (str(o.layout), bool(o.cross_fold))
     run = PsfRun.start(calib, capture, o, [key])
     plan = run.plan(key)

@@ -12,7 +12,7 @@ albedo and ambient alike), so at every camera pixel::
     h(c_AB) − h(c_0) = (h(c_A) − h(c_0)) + (h(c_B) − h(c_0))       (c_0: the black frame)
 
 i.e. ``h(c_AB) − h(c_A) − h(c_B) + h(c_0) = 0`` — linear in h. A linear h satisfies it only
-when the camera is linear. The patterns: AB is the radiometry stage's gray-patch ramp (levels
+when the camera is linear. The patterns: AB is the radiometry stage's grey-patch ramp (levels
 15..255) and A, B split its pixels by a seeded random mask, so the blur mixes lit and dark
 pixels in every proportion and each camera pixel of the lit area is one equation. h is
 the parametric family :func:`response_curve` (linear, power laws and sRGB), fitted per

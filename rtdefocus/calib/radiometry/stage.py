@@ -5,11 +5,11 @@ The model (DESIGN.md §3), in camera-linear light normalised to [0, 1]::
     O(x) = α(x) · (F P)(x) + Γ(x),        P = g(v) ∈ [0, 1],  g(0) = 0, g(255) = 1
 
 Captures (``capture`` counts them): a black frame and a white frame (each averaged over a few
-captures against camera noise) and one *patch ramp*: a grid of uniform gray patches, one level
+captures against camera noise) and one *patch ramp*: a grid of uniform grey patches, one level
 each. For any pixel inside a patch (farther than the blur from the patch's border) the ratio
 ``(I_v − I_black) / (I_white − I_black)`` is ``g(v)`` whatever the albedo, shading and ambient
 there, so a single capture gives the whole ramp, averaged over thousands of pixels. The three
-camera channels give the three projector channels (gray patches; no crosstalk assumed).
+camera channels give the three projector channels (grey patches; no crosstalk assumed).
 
 The camera's own response comes first (``camera_response``, :mod:`.camera_response`):
 ``"auto"`` (default) recovers it from captures alone by superposition — the ramp pattern
@@ -37,9 +37,10 @@ import numpy as np
 from ...checks import check_choice
 from ...errors import CalibrationError, InputError
 from ...planar import apply_h_per_plane
-from ..capture import Capturer
+from ..capture import Capturer, check_capturer, check_geometry
 from ..file import Calibration
 from ..geometry.lens import lens_k, lit_mask_observed, observed_points
+from ..options import stage_options
 from .camera_response import (
     CAMERA_RESPONSES,
     fit_inverse_response,
@@ -65,7 +66,7 @@ class RadiometryOptions:
     ----------
     black_frames, white_frames : captures averaged for the black and the white frame (camera
         noise).
-    ramp_levels : gray levels of the ramp, ints in 1..254 (and 255).
+    ramp_levels : grey levels of the ramp, ints in 1..254 (and 255).
     ramp_layout : ``"patches"``: all levels in one capture as a grid of patches (needs no
         interreflection between the walls); ``"frames"``: one full-frame capture per level.
     camera_response : ``"auto"`` (recover it by superposition), ``"srgb"`` or ``"linear"``
@@ -94,7 +95,6 @@ class RadiometryOptions:
 
 #: names of the stage's options (the fields of :class:`RadiometryOptions`).
 OPTIONS = tuple(f.name for f in fields(RadiometryOptions))
-_D = RadiometryOptions()
 # A camera code at or above this is treated as clipped.
 SATURATED = 250.0
 
@@ -162,7 +162,7 @@ def to_projector(calib: Calibration, img_cam: np.ndarray,
 
 def ramp_pattern(projector_size: tuple[int, int], levels, grid: tuple[int, int] | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """A grid of uniform gray patches, one per level, in reading order.
+    """A grid of uniform grey patches, one per level, in reading order.
 
     Returns
     -------
@@ -200,7 +200,7 @@ def fit_gamma(levels: np.ndarray, values: np.ndarray, weights: np.ndarray | None
     ok = (t > 0) & (t < 1) & np.isfinite(y)
     t, y, w = t[ok], y[ok], w[ok]
     if t.size == 0:
-        raise CalibrationError("no usable gray-ramp level between 0 and 255 to fit the "
+        raise CalibrationError("no usable grey-ramp level between 0 and 255 to fit the "
                                "projector's response; use ramp_levels inside 1..254")
     pos = y > 1e-3  # log-domain start, then refine where the noise model is right
     g = float(np.polyfit(np.log(t[pos]), np.log(y[pos]), 1, w=np.sqrt(y[pos]))[0]) if \
@@ -252,40 +252,47 @@ def _lit_camera_mask(calib: Calibration) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the stage
-def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
-                         black_frames: int = _D.black_frames, white_frames: int = _D.white_frames,
-                         ramp_levels=_D.ramp_levels, ramp_layout: str = _D.ramp_layout,
-                         camera_response: str = _D.camera_response,
-                         response_frames: int = _D.response_frames,
-                         camera_gamma: float = _D.camera_gamma,
-                         response_model: str = _D.response_model,
-                         ambient_smooth: float = _D.ambient_smooth) -> Calibration:
+def calibrate_radiometry(calib: Calibration, capture: Capturer,
+                         options: RadiometryOptions | None = None, **overrides) -> Calibration:
     """Measure the projector response, ambient Γ and albedo α; fill ``calib``'s radiometry.
 
     Parameters
     ----------
-    procam : ProCam (only used through ``capture``)
     calib : Calibration
-        With the geometry section (homographies, fold); filled in place and returned.
+        With the geometry section (homographies, folds); its radiometry section is filled in
+        place and it is returned.
     capture : Capturer
-        Counts the captures (stage ``"radiometry"``).
-    black_frames, white_frames, ramp_levels, ramp_layout, camera_response, response_frames,
-    camera_gamma, response_model, ambient_smooth
-        See :class:`RadiometryOptions` (their defaults are its defaults).
+        The calibration's capturer (the ProCam, counts, progress, frame cache; stage
+        ``"radiometry"``).
+    options : RadiometryOptions, optional
+        The stage's options (default: :class:`RadiometryOptions`' defaults).
+    **overrides
+        Fields of :class:`RadiometryOptions` (``black_frames=5``, ``camera_response="srgb"``,
+        ...) replacing those of ``options``.
 
     Returns
     -------
     Calibration
-        ``response_lut`` (3, 256) float32, ``ambient_proj`` and ``albedo_proj``
-        (Hp, Wp, 3) float32 in camera-linear units, ``meta["radiometry"]`` with the fitted
-        ``gamma`` per channel, fit residuals and the coverage.
+        ``calib`` with ``camera_lut`` (3, 256), ``response_lut`` (3, 256) float32,
+        ``ambient_proj`` and ``albedo_proj`` (Hp, Wp, 3) float32 in camera-linear units,
+        ``meta["radiometry"]`` with the fitted ``gamma`` per channel, fit residuals and the
+        coverage.
 
     Raises
     ------
+    InputError
+        An option unknown or out of range (before any capture).
     CalibrationError
         When the white frame is not brighter than the black one where the projector lights
         the surface, when the camera saturates on white, or when no ramp patch is usable.
     """
+    check_capturer(capture)
+    o = stage_options(RadiometryOptions, options, **overrides)
+    black_frames, white_frames, ramp_levels = o.black_frames, o.white_frames, o.ramp_levels
+    ramp_layout, camera_response, response_frames = o.ramp_layout, o.camera_response, \
+        o.response_frames
+    camera_gamma, response_model, ambient_smooth = o.camera_gamma, o.response_model, \
+        o.ambient_smooth
     check_choice(response_model, ("auto", "gamma", "table"), "response_model")
     check_choice(ramp_layout, ("patches", "frames"), "ramp_layout")
     levels = np.array(sorted({int(v) for v in ramp_levels}), dtype=int)
@@ -294,6 +301,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     if black_frames < 1 or white_frames < 1 or response_frames < 1:
         raise InputError("black_frames, white_frames and response_frames must be >= 1")
     check_choice(camera_response, CAMERA_RESPONSES, "camera_response")
+    check_geometry(calib, "radiometry")
     wp, hp = calib.projector_size
     n_ramp = 1 if ramp_layout == "patches" else len(levels)
     auto = camera_response == "auto" and camera_gamma == 1.0
@@ -397,7 +405,7 @@ def calibrate_radiometry(procam, calib: Calibration, *, capture: Capturer,
     ok = np.isfinite(ratios[0])
     if ok.sum() < 2:
         raise CalibrationError(
-            f"only {int(ok.sum())} gray-ramp patches were seen clearly (need 2); the projector "
+            f"only {int(ok.sum())} grey-ramp patches were seen clearly (need 2); the projector "
             "lights too little of the camera's view — move the camera or use ramp_layout='frames'")
 
     # ---- response: fit, then the LUT
