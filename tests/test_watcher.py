@@ -148,6 +148,30 @@ def test_unchanged_set_up_playing_moving_content_with_a_cut_raises_no_alarm(pres
     assert w.trusted and w.untrusted_frames == 0 and w.calib is calib
 
 
+def test_plain_frames_say_nothing_and_raise_no_alarm():
+    """Black, grey and white frames (a fade, a title card) cannot tell gain from added light
+    nor show blur: the watcher neither suspects nor clears anything on them."""
+    pc, calib = setup("webcam_cubicle")
+    plain = [np.full((PROJ[1], PROJ[0], 3), v, np.uint8) for v in (0, 128, 255)]
+    plain.append((content(3) // 6).astype(np.uint8))           # dark, noise-dominated texture
+    w = Watcher(calib, camera_view(pc), period_s=0.0, threaded=False, clock=lambda: 0.0)
+    for i in range(12):
+        w.offer(plain[i % len(plain)])
+    assert w.looks == 12 and w.events == [] and w.trusted
+    # A change seen on content is mended; plain frames do not clear the mend, content does.
+    pc.set_light(ambient=pc.ambient + 0.1)
+    w.offer(content(0))
+    w.offer(content(1))
+    assert [e.action for e in w.events] == ["detect", "mend"] and not w.trusted
+    for f in plain:
+        w.offer(f)
+    assert [e.action for e in w.events] == ["detect", "mend"] and not w.trusted
+    w.offer(content(2))
+    assert [e.action for e in w.events] == ["detect", "mend", "cleared"]
+    assert not w.trusted                 # until the Player has taken the mended calibration
+    assert w.poll().calibration is w.calib and w.trusted
+
+
 def test_threaded_watcher_compares_with_the_frame_shown_not_the_buffer_reused():
     """The Player may reuse its frame buffer after offering it: the look runs on a thread
     while the buffer already holds the next picture. The watcher compares with its own copy
@@ -243,6 +267,22 @@ def test_player_applies_the_update_between_two_frames_and_shows_geometry_until_m
     assert kinds.count("warp") == w.untrusted_frames
 
 
+def test_bad_watch_inputs_get_one_line_errors():
+    _, calib = setup()
+    wrong_camera = Watcher(calib, lambda shown: np.zeros((10, 10, 3), np.uint8), period_s=0.0,
+                           threaded=False)
+    with pytest.raises(InputError, match="the look returned"):
+        wrong_camera.offer(content(0))
+    with pytest.raises(InputError, match="period_s"):
+        Watcher(calib, lambda shown: shown, period_s=-1.0)
+
+    class NoSwap:
+        projector_size = PROJ
+
+    with pytest.raises(InputError, match="with_calibration"):
+        Player(NoSwap(), ArraySource([content(0)]), NullSink(), watcher=wrong_camera)
+
+
 def test_rescale_kernels_keeps_unit_sums_and_is_the_identity_at_one():
     _, calib = setup()
     same = rescale_kernels(calib, 1.0)
@@ -308,7 +348,7 @@ def test_play_watch_from_the_cli_leaves_the_file_alone_unless_asked(show_files, 
     assert err < 0.1 * abs(float(stale.ambient_proj.mean() - oracle.ambient_proj.mean()))
 
 
-def test_play_watch_options_are_checked(show_files, capsys):
+def test_play_watch_options_are_checked(show_files, capsys, tmp_path):
     _, setup_path, clip, _ = show_files
     base = ["play", str(setup_path), str(clip), "--out", "null"]
     assert cli.main([*base, "--watch"]) == 1
@@ -317,3 +357,8 @@ def test_play_watch_options_are_checked(show_files, capsys):
     assert "go with --watch" in capsys.readouterr().err
     assert cli.main([*base, "--watch", "--sim", "cubicle", "--sim-event", "soon"]) == 1
     assert "--sim-event must be" in capsys.readouterr().err
+    slide = tmp_path / "one.png"
+    cv2.imwrite(str(slide), content(0))
+    assert cli.main(["play", str(setup_path), str(slide), "--out", "null", "--watch", "--sim",
+                     "cubicle"]) == 1
+    assert "slideshow is played without it" in capsys.readouterr().err

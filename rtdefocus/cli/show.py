@@ -206,7 +206,8 @@ def _watcher(args, calib):
                                camera_size=tuple(calib.camera_size))
     clock = FrameClock(args.fps or 30.0)
     look = timeline_view(procam, sim.Timeline(_sim_events(args.sim_event)), clock)
-    # Show time by frame count: a render to a file is watched at the show's own pace.
+    # Show time by frame count: a render to a file is watched at the show's own pace, and
+    # deterministically (looks on the frame loop's thread; a window gets a thread of its own).
     return Watcher(calib, look, period_s=args.watch_period, clock=clock, threaded=False)
 
 
@@ -275,6 +276,8 @@ def cmd_play(args) -> int:
                 bar.update(done - bar.n)
         cache = None if args.no_cache else (args.cache or True)
         shown = _with_preview(sink, args.preview)
+        if watcher is not None:
+            watcher.threaded = sink.realtime     # a window's frames must not wait for a look
         show = Show(comp, args.source, shown, loop=args.loop, exit_at_end=args.exit_at_end,
                     placement=placement, audio=not args.no_audio,
                     source_options={"camera_size": args.camera_size, "fourcc": args.fourcc,

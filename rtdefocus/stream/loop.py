@@ -187,6 +187,12 @@ class Player:
         self._catch_up = CatchUp(self.budget) if self.budget is not None else None
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
         self._writer: SinkWriter | None = None
+        if watcher is not None and not hasattr(compensator, "with_calibration"):
+            raise InputError("a watcher needs a compensator with with_calibration(calib) (as "
+                             "rtdefocus.Compensator has) to apply its mended calibrations")
+        if watcher is not None and source.still and isinstance(source, SlidesSource):
+            raise InputError("the watcher watches video and live sources; a slideshow is "
+                             "played without it (leave out --watch / watcher=)")
         self.watcher = watcher
 
     def settings(self) -> dict:
@@ -447,6 +453,8 @@ class Player:
                 if not ok:
                     self._writer.abort()
                 self._writer = None
+            if self.watcher is not None:
+                self.watcher.close()             # a look in progress on its thread
             if thread is not None:
                 thread.join(timeout=10)
                 if thread.is_alive():

@@ -1,12 +1,15 @@
 """Watching the show: what the camera should see of the frame on the wall, what a capture says
 changed (:mod:`~rtdefocus.watch.residual`), the mends that explain it
-(:mod:`~rtdefocus.watch.mend`) and the :class:`Watcher` the Player drives
-(:mod:`~rtdefocus.watch.watcher`)."""
+(:mod:`~rtdefocus.watch.mend`), the :class:`Watcher` the Player drives
+(:mod:`~rtdefocus.watch.watcher`) and what a watched show needs around it
+(:mod:`~rtdefocus.watch.session`)."""
 
 from .mend import mend_camera, mend_light, mend_projector, rescale_kernels
 from .residual import ResidualReport, observe_proj, predict_proj, residual_report
+from .session import FrameClock, save_watched, timeline_view, watched_path
 from .watcher import Thresholds, Watcher, WatchEvent, WatchUpdate, camera_view
 
-__all__ = ["ResidualReport", "Thresholds", "WatchEvent", "WatchUpdate", "Watcher", "camera_view",
-           "mend_camera", "mend_light", "mend_projector", "observe_proj", "predict_proj",
-           "rescale_kernels", "residual_report"]
+__all__ = ["FrameClock", "ResidualReport", "Thresholds", "WatchEvent", "WatchUpdate", "Watcher",
+           "camera_view", "mend_camera", "mend_light", "mend_projector", "observe_proj",
+           "predict_proj", "rescale_kernels", "residual_report", "save_watched", "timeline_view",
+           "watched_path"]

@@ -4,27 +4,34 @@ difference says what changed (DESIGN.md §9, "The watcher").
 
 Each look gives a :class:`~rtdefocus.watch.residual.ResidualReport`. The watcher attributes a
 difference to **geometry**, then **light**, then **focus** (in that order: a bump also changes
-the light fit and the band-pass energy), with hysteresis: a kind is *detected* when
-``confirm`` successive looks exceed its high threshold, and the set-up counts as unchanged
-again only below its low threshold. A look compares the camera frame with the very frame the
-projector showed when it was taken (the Player hands that frame over), so moving content and
-cuts are no change.
+the light fit and the band-pass energy, so a later kind is not judged while an earlier one is
+changing), with hysteresis per kind: a kind is *detected* when ``confirm`` successive looks
+exceed its high threshold, and *cleared* only by a look below its low threshold. Light and
+focus are judged against their levels while the model was right (a calibration is rarely
+exact in them). A look compares the camera frame with the very frame the projector showed
+when it was taken (the Player hands that frame over), so moving content and cuts are no
+change; a look judges only what its frame can show (a plain frame tells nothing of light or
+focus, see :class:`Thresholds`).
 
 On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
 shows geometry only, never worse than no compensation) and a mend is estimated from the
 content, with no pattern on the screen:
 
 * light: albedo and ambient re-scaled by the report's gain and added room light;
-* geometry: a camera move (every plane's content moved by one camera-space shift) is one
-  camera-side correction for all planes; otherwise a projector move, one shift per plane
-  with the folds kept consistent (:mod:`~rtdefocus.watch.mend`);
-* focus: every kernel's radius rescaled by the factor whose prediction best explains the
-  capture (least residual over a golden-section search).
+* geometry: a camera move is one camera-side correction for all planes, a projector move one
+  shift per plane with the folds kept consistent (:mod:`~rtdefocus.watch.mend`); which of the
+  two it was is decided by which mend explains the capture better (the walls move with a
+  camera move, not with a projector move);
+* focus: every kernel's radius rescaled by the factor that brings the band-pass ratio back to
+  its level while the model was right.
 
 The mend becomes a new :class:`~rtdefocus.calib.file.Calibration` (the one in use is never
 modified), handed to the Player by :meth:`Watcher.poll` as a :class:`WatchUpdate` that it
-applies between two frames. The next look checks it: below the low thresholds the model is
-trusted again; otherwise the remaining difference is mended the same way.
+applies between two frames. The next look checks it: below the low threshold the kind is
+cleared; otherwise what is left is mended the same way (at most ``max_mends`` times; then the
+watcher gives up, says so, and frames stay geometry only: the set-up needs a calibration).
+A short burst of calibration patterns for changes the content cannot mend is not part of
+this watcher.
 """
 
 from __future__ import annotations
@@ -36,10 +43,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
+from ..reference.lut import decode_lut
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
 from .residual import ResidualReport, residual_report
 
@@ -100,7 +109,12 @@ class Thresholds:
         phase-correlation peak is at least ``min_confidence``.
     gain : |gain / its level while trusted − 1| (exposure or albedo change).
     ambient : |added room light − its level while trusted| (mean camera linear light).
-    focus : |band ratio / its value while trusted − 1|.
+    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain).
+    min_confidence, min_contrast, min_band : what a look must offer to say anything of a kind:
+        geometry, a plane's phase-correlation peak; light, the shown frame's standard deviation
+        in linear light (a plain frame cannot tell gain from added light); focus, its band-pass
+        (difference of Gaussians, σ 1 and 2 px) RMS in linear light (below it the camera's
+        noise sets the ratio). A kind a look says nothing of is neither suspected nor cleared.
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
@@ -108,6 +122,8 @@ class Thresholds:
     ambient: tuple[float, float] = (0.015, 0.0075)
     focus: tuple[float, float] = (0.012, 0.006)
     min_confidence: float = 0.05
+    min_contrast: float = 0.03
+    min_band: float = 0.008
 
 
 def _band(r: ResidualReport) -> float:
@@ -144,8 +160,9 @@ class Watcher:
         :meth:`offer` (deterministic).
     thresholds : :class:`Thresholds`.
     confirm : successive looks over a high threshold that make a detection.
-    band_looks : trusted looks that set the band ratio's level before a focus change can be
-        detected (after every mend the level is measured again).
+    band_looks : looks of a trusted, unchanging set-up that set the levels light and focus
+        are judged against (until then light is judged against a gain of 1 and no added
+        light, focus not at all; a light mend starts the light's level again).
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
@@ -256,6 +273,10 @@ class Watcher:
         the clock: tests and evaluations may call it directly). Returns the report (None when
         the camera no longer sees the frame)."""
         self.looks += 1
+        wc, hc = self.calib.camera_size
+        if np.shape(capture) != (hc, wc, 3):
+            raise InputError(f"the look returned a {np.shape(capture)} frame; the calibration's "
+                             f"camera gives ({hc}, {wc}, 3): check the camera the watcher uses")
         try:
             r = self.report(self.calib, shown, capture)
         except InputError as exc:
@@ -269,7 +290,7 @@ class Watcher:
         self.last_report = r
         if self._active.pop("lost", None) is not None:
             self._event(t, "lost", "cleared", {})
-        over, under = self._classify(r)
+        over, under, informative = self._classify(r, self._informative(shown))
         todo = None
         blocked = False          # an earlier kind is changing: later kinds are not judged
         for k in KINDS:
@@ -279,10 +300,12 @@ class Watcher:
                     del self._active[k]
                     self._event(t, k, "cleared", {})
                     continue
+                blocked = True
+                if not informative[k]:
+                    continue                 # this look says nothing of it: wait for one that does
                 # Mended but not right yet: mend what is left.
                 self._measured[k] = [r]
                 todo = todo or k
-                blocked = True
             elif blocked or not over[k]:
                 self._suspect[k], self._measured[k] = 0, []
             else:
@@ -296,9 +319,12 @@ class Watcher:
         if todo is not None:
             self._update_trust()            # geometry only from the next frame on
             self._mend(todo, shown, capture, t)
-        elif not self._active and not any(over.values()) and math.isfinite(_band(r)):
-            self._band_base = (self._band_base + [_band(r)])[-16:]
-            self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
+        elif not self._active and not any(over.values()):
+            # The levels of a model known right, each from looks that can tell it.
+            if informative["focus"] and math.isfinite(_band(r)):
+                self._band_base = (self._band_base + [_band(r)])[-16:]
+            if informative["light"]:
+                self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
         return r
 
@@ -318,10 +344,20 @@ class Watcher:
         if self._trusted and not was:
             log.info("watch: the model is trusted again")
 
-    def _classify(self, r: ResidualReport) -> tuple[dict, dict]:
-        """Per kind: over its high threshold, and under its low one."""
+    def _informative(self, shown: np.ndarray) -> dict:
+        """Per kind, whether the shown frame has the content to judge it (see
+        :class:`Thresholds`)."""
+        lin = decode_lut(np.asarray(shown), self.calib.lut).mean(axis=0)
+        band = cv2.GaussianBlur(lin, (0, 0), 1.0) - cv2.GaussianBlur(lin, (0, 0), 2.0)
+        return {"geometry": True, "light": float(lin.std()) > self.th.min_contrast,
+                "focus": float(np.sqrt(np.mean(band ** 2))) > self.th.min_band}
+
+    def _classify(self, r: ResidualReport, informative: dict) -> tuple[dict, dict, dict]:
+        """Per kind: over its high threshold, under its low one (neither where the look has
+        nothing to say of the kind), and whether it has something to say."""
         th = self.th
         ok = np.isfinite(r.shifts_proj).all(axis=1) & (r.confidence >= th.min_confidence)
+        informative = dict(informative, geometry=informative["geometry"] and bool(ok.any()))
         geo = float(np.linalg.norm(r.shifts_proj[ok], axis=1).max()) if ok.any() else 0.0
         g_ref, a_ref = self._light_ref()
         gain = abs(r.gain / g_ref - 1.0)
@@ -337,7 +373,10 @@ class Watcher:
         under = {"geometry": geo < th.geometry_px[1],
                  "light": gain < th.gain[1] and amb < th.ambient[1],
                  "focus": not psf or focus < th.focus[1]}
-        return over, under
+        for k in KINDS:
+            if not informative[k]:
+                over[k] = under[k] = False
+        return over, under, informative
 
     @staticmethod
     def _describe(kind: str, r: ResidualReport) -> dict:
