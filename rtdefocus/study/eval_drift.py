@@ -51,6 +51,8 @@ from ..compensate import Compensator
 from ..errors import InputError
 from ..gl.warp import warp_image
 from ..sim import Timeline, oracle_calibration
+from ..watch import Watcher
+from ..watch import camera_view as watch_look
 from .eval_video import Segment, make_clip
 from .machine import machine_info
 from .scores import camera_view, psnr
@@ -106,12 +108,8 @@ class _ShowClock:
 
 
 def _new_watcher(calib, procam, clock, watcher_options):
-    try:
-        from ..watch import Watcher
-        from ..watch import camera_view as watch_look
-    except ImportError as exc:
-        raise InputError("the watch row needs rtdefocus.watch.Watcher, which this install "
-                         "lacks; leave 'watch' out of rows") from exc
+    """The watch row's Watcher: synchronous, on the show clock (set to each frame's time, so
+    any number of clock reads per frame agree)."""
     opts = {"period_s": 0.25, **(watcher_options or {})}
     return Watcher(calib, watch_look(procam), clock=clock, threaded=False, **opts)
 
