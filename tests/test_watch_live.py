@@ -7,9 +7,13 @@ from __future__ import annotations
 import threading
 import time
 
+import cv2
 import numpy as np
-from test_watcher import FPS, content, setup
+import pytest
+from hardware_fakes import FakeDevice, FakeProjector
+from test_watcher import FPS, TEXTURES, content, setup
 
+from rtdefocus import cli, sim
 from rtdefocus.watch import Watcher, camera_view
 from rtdefocus.watch.watcher import LiveView
 
@@ -68,3 +72,70 @@ def test_a_delayed_look_is_compared_with_the_frame_on_the_wall_then():
     w = watch_pan(pc, calib, paired=False)
     detects = [e for e in w.events if e.action == "detect"]
     assert detects and detects[0].kind == "geometry"
+
+
+LIVE_PROJ, LIVE_CAM = (240, 180), (320, 240)      # a camera mode the fake camera offers
+LATENCY = 0.08
+
+
+@pytest.mark.timeout(60)
+def test_play_watch_on_hardware_watches_the_show_window_with_the_calibrated_latency(
+        monkeypatch, tmp_path, capsys):
+    """`rtdefocus play setup.npz clip --watch` without --sim: the camera is opened on the
+    player's own window with the latency the calibration remembers, looks on a thread, shows
+    nothing of its own on the wall, and is released at the end."""
+    import functools
+
+    import rtdefocus.gl.window as window_mod
+    import rtdefocus.hardware.hardware_procam as procam_mod
+
+    pc = sim.VirtualProCam("cubicle", projector_size=LIVE_PROJ, camera_size=LIVE_CAM)
+    calib = sim.oracle_calibration(pc)
+    calib.meta["hardware"] = {"camera": {"name": "", "index": 0, "latency_s": LATENCY}}
+    setup_path = calib.save(tmp_path / "setup.npz")
+    clip = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, LIVE_PROJ)
+    frames = 15
+    for i in range(frames):
+        x = 3 * i
+        writer.write(cv2.cvtColor(np.ascontiguousarray(
+            TEXTURES[0][:LIVE_PROJ[1], x:x + LIVE_PROJ[0]]), cv2.COLOR_RGB2BGR))
+    writer.release()
+
+    windows, made = [], {}
+    monkeypatch.setattr(window_mod, "ProjectorWindow",
+                        lambda *a, size=None, **kw: windows.append(FakeProjector(LIVE_PROJ))
+                        or windows[-1])
+    real = procam_mod.HardwareProCam
+
+    def hardware(camera, *, window, **kw):
+        dev = FakeDevice(window, delay=LATENCY, size=LIVE_CAM, world=pc.capture, noise=0.5)
+        made.update(camera=camera, window=window, latency=kw.get("latency"), device=dev)
+        made["procam"] = real(camera, window=window, capture_factory=dev, **kw)
+        return made["procam"]
+
+    monkeypatch.setattr(procam_mod, "HardwareProCam", hardware)
+    looks = []
+    monkeypatch.setattr(Watcher, "step", functools.partialmethod(
+        lambda self, shown, capture, t, _step=Watcher.step: looks.append(capture.shape)
+        or _step(self, shown, capture, t)))
+    assert cli.main(["play", str(setup_path), str(clip), "--watch", "--exit-at-end",
+                     "--no-audio", "--watch-period", "0.2", "--method", "none"]) == 0
+    out = capsys.readouterr().out
+    assert made["window"] is windows[0] and made["camera"] == 0
+    assert made["latency"] == pytest.approx(LATENCY)
+    assert made["procam"].looked_at is not None
+    assert len(looks) >= 2 and set(looks) == {(LIVE_CAM[1], LIVE_CAM[0], 3)}
+    assert "watch: " in out and " looks" in out
+    # only the show's frames went to the wall (the start-up black, then the clip's)
+    assert 2 <= len(windows[0].timeline) <= 1 + frames
+    assert not made["device"].cap.opened                  # the camera released at the end
+
+
+def test_play_watch_on_hardware_needs_the_show_window(tmp_path, capsys):
+    pc = sim.VirtualProCam("cubicle", projector_size=LIVE_PROJ, camera_size=LIVE_CAM)
+    setup_path = sim.oracle_calibration(pc).save(tmp_path / "setup.npz")
+    assert cli.main(["play", str(setup_path), "x.avi", "--out", "null", "--watch"]) == 1
+    assert "leave out --out" in capsys.readouterr().err
+    assert cli.main(["play", str(setup_path), "x.avi", "--out", "null", "--watch-camera", "1"]) == 1
+    assert "go with --watch" in capsys.readouterr().err
