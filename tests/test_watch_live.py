@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from hardware_fakes import FakeDevice, FakeProjector
-from test_watcher import FPS, TEXTURES, content, setup
+from test_watcher import CHANGE_AT, CHANGES, FPS, TEXTURES, content, play, setup
 
 from rtdefocus import cli, sim
 from rtdefocus.watch import Watcher, camera_view
@@ -139,3 +139,16 @@ def test_play_watch_on_hardware_needs_the_show_window(tmp_path, capsys):
     assert "leave out --out" in capsys.readouterr().err
     assert cli.main(["play", str(setup_path), "x.avi", "--out", "null", "--watch-camera", "1"]) == 1
     assert "go with --watch" in capsys.readouterr().err
+
+
+def test_a_long_period_with_a_quick_recheck_still_detects_within_a_second():
+    """Looks every 0.8 s while the set-up is right (a fifth of the cost of 4 looks/s), and
+    0.1 s after a look over a threshold: a projector bump is confirmed within 1 s."""
+    pc, calib = setup()
+    w = play(pc, calib, 2.5, change=CHANGES["projector"], period_s=0.8, recheck_s=0.1)
+    detects = [e for e in w.events if e.action == "detect"]
+    assert [e.kind for e in detects] == ["geometry"]
+    assert CHANGE_AT < detects[0].t <= CHANGE_AT + 1.0
+    assert any(e.action == "mend" for e in w.events)
+    # two looks in the quiet second and a half, then the confirmation and the check
+    assert w.looks <= 6

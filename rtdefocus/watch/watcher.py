@@ -183,6 +183,10 @@ class Watcher:
         (:class:`LiveView`: the time, by ``clock``, its picture was on the wall) is paired,
         when threaded, with the frame offered last by then.
     period_s : seconds between looks, by ``clock``.
+    recheck_s : seconds to the next look while a change is suspected (a look over a high
+        threshold waits for ``confirm``) or being mended (None: ``period_s``). A long
+        ``period_s`` with a short ``recheck_s`` keeps the watcher's cost low and still detects
+        within about ``period_s + (confirm - 1) · recheck_s`` plus the looks' own time.
     clock : seconds, monotonic (a simulated clock makes an evaluation deterministic).
     threaded : look, report and decide on a background thread (frames are not delayed; a
         look due while the last is still being worked on is skipped); False does it all in
@@ -211,14 +215,18 @@ class Watcher:
                  period_s: float = 0.25, clock: Callable[[], float] = time.perf_counter,
                  threaded: bool = True, thresholds: Thresholds | None = None, confirm: int = 2,
                  max_mends: int = 4, band_looks: int = 4,
-                 report: Callable[..., ResidualReport] = residual_report):
+                 report: Callable[..., ResidualReport] = residual_report,
+                 recheck_s: float | None = None):
         if not (math.isfinite(period_s) and period_s >= 0):
             raise InputError(f"period_s must be a number of seconds >= 0; got {period_s!r}")
+        if recheck_s is not None and not (math.isfinite(recheck_s) and recheck_s >= 0):
+            raise InputError(f"recheck_s must be a number of seconds >= 0 or None; got {recheck_s!r}")
         if confirm < 1:
             raise InputError(f"confirm must be >= 1; got {confirm!r}")
         self.calib = calib
         self.look = look
         self.period_s = float(period_s)
+        self.recheck_s = self.period_s if recheck_s is None else float(recheck_s)
         self.clock = clock
         self.threaded = bool(threaded)
         self.th = thresholds or Thresholds()
@@ -267,7 +275,9 @@ class Watcher:
                 with self._lock:
                     self._shown = (self._shown + [(t, np.array(shown, copy=True))])[-_HISTORY:]
             return False
-        if t - self._last_look < self.period_s:
+        with self._lock:
+            hurry = bool(self._active) or any(self._suspect.values())
+        if t - self._last_look < (self.recheck_s if hurry else self.period_s):
             return False
         if self.threaded:
             self._last_look = t
