@@ -158,8 +158,11 @@ def add_play(sub):
     w.add_argument("--save-updates", action="store_true",
                    help="with --watch: save the mended calibration beside the original as "
                    "NAME.watched.npz (the original is never touched)")
-    w.add_argument("--watch-period", type=float, default=0.25, metavar="S",
-                   help="seconds of show time between looks (default 0.25)")
+    w.add_argument("--watch-period", type=float, default=None, metavar="S",
+                   help="seconds of show time between looks while the set-up is right (default "
+                   "0.25 with --sim; on hardware 0.8, with a look again 0.1 s after one that "
+                   "sees a change: under 10 %% of a 30 fps show's time, a change confirmed "
+                   "within about a second)")
     w.add_argument("--watch-camera", metavar="CAMERA",
                    help="with --watch on hardware: the camera that watches the show's window, an "
                    "index or a URL (default: the one the calibration remembers, else 0)")
@@ -216,7 +219,14 @@ def _watcher(args, calib):
     look = timeline_view(procam, sim.Timeline(_sim_events(args.sim_event)), clock)
     # Show time by frame count: a render to a file is watched at the show's own pace, and
     # deterministically (looks on the frame loop's thread; a window gets a thread of its own).
-    return Watcher(calib, look, period_s=args.watch_period, clock=clock, threaded=False)
+    period = 0.25 if args.watch_period is None else args.watch_period
+    return Watcher(calib, look, period_s=period, clock=clock, threaded=False)
+
+
+#: Seconds between looks on hardware while the set-up is right, and after a look that sees a
+#: change: the report's CPU time over the period stays under 10 % of a 30 fps show's time
+#: (docs/performance.md, "Watching the show: the report's cost").
+HARDWARE_LOOK_PERIOD, HARDWARE_RECHECK = 0.8, 0.1
 
 
 def _hardware_watcher(args, calib, sink):
@@ -249,7 +259,9 @@ def _hardware_watcher(args, calib, sink):
                          f"{calib.camera_size[1]}: use the calibration's camera (--watch-camera)")
     # Threaded on the perf_counter clock: a look's picture is paired with the frame that was
     # on the wall when the camera saw it (HardwareProCam.looked_at).
-    return Watcher(calib, camera_view(procam), period_s=args.watch_period, threaded=True), procam
+    period = HARDWARE_LOOK_PERIOD if args.watch_period is None else args.watch_period
+    return Watcher(calib, camera_view(procam), period_s=period, threaded=True,
+                   recheck_s=min(period, HARDWARE_RECHECK)), procam
 
 
 def _screen(screen: int | None, calib) -> int:
