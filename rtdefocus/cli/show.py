@@ -158,8 +158,14 @@ def add_play(sub):
     w.add_argument("--save-updates", action="store_true",
                    help="with --watch: save the mended calibration beside the original as "
                    "NAME.watched.npz (the original is never touched)")
-    w.add_argument("--watch-period", type=float, default=0.25, metavar="S",
-                   help="seconds of show time between looks (default 0.25)")
+    w.add_argument("--watch-period", type=float, default=None, metavar="S",
+                   help="seconds of show time between looks while the set-up is right (default "
+                   "0.25 with --sim; on hardware 0.8, with a look again 0.1 s after one that "
+                   "sees a change: under 10 %% of a 30 fps show's time, a change confirmed "
+                   "within about a second)")
+    w.add_argument("--watch-camera", metavar="CAMERA",
+                   help="with --watch on hardware: the camera that watches the show's window, an "
+                   "index or a URL (default: the one the calibration remembers, else 0)")
     w.add_argument("--sim", metavar="PRESET",
                    help="with --watch: the camera watches the built-in virtual set-up PRESET "
                    "(of the calibration's sizes) instead of hardware")
@@ -191,13 +197,18 @@ def _watcher(args, calib):
     from ..errors import InputError
 
     if not args.watch:
-        if args.save_updates or args.sim or args.sim_event:
-            raise InputError("--save-updates, --sim and --sim-event go with --watch")
+        if args.save_updates or args.sim or args.sim_event or args.watch_camera is not None:
+            raise InputError("--save-updates, --watch-camera, --sim and --sim-event go with --watch")
         return None
     if not args.sim:
-        raise InputError("--watch needs a camera that watches the show: use --sim PRESET for the "
-                         "virtual set-up; on hardware use the API (rtdefocus.watch.Watcher with "
-                         "camera_view(procam))")
+        if args.sim_event:
+            raise InputError("--sim-event goes with --sim PRESET")
+        if args.out is not None:
+            raise InputError("--watch on hardware watches the show's own window: leave out --out "
+                             "(or use --sim PRESET to watch the virtual set-up)")
+        return None                  # built on the show's window (_hardware_watcher)
+    if args.watch_camera is not None:
+        raise InputError("--watch-camera is the hardware camera; leave it out with --sim")
     from .. import sim
     from ..watch import Watcher
     from ..watch.session import FrameClock, timeline_view
@@ -208,7 +219,49 @@ def _watcher(args, calib):
     look = timeline_view(procam, sim.Timeline(_sim_events(args.sim_event)), clock)
     # Show time by frame count: a render to a file is watched at the show's own pace, and
     # deterministically (looks on the frame loop's thread; a window gets a thread of its own).
-    return Watcher(calib, look, period_s=args.watch_period, clock=clock, threaded=False)
+    period = 0.25 if args.watch_period is None else args.watch_period
+    return Watcher(calib, look, period_s=period, clock=clock, threaded=False)
+
+
+#: Seconds between looks on hardware while the set-up is right, and after a look that sees a
+#: change: the report's CPU time over the period stays under 10 % of a 30 fps show's time
+#: (docs/performance.md, "Watching the show: the report's cost").
+HARDWARE_LOOK_PERIOD, HARDWARE_RECHECK = 0.8, 0.1
+
+
+def _hardware_watcher(args, calib, sink):
+    """``--watch`` on hardware: the camera watches the show's own window, looks taken by time
+    with the latency the calibration measured. Returns (Watcher, HardwareProCam)."""
+    from ..errors import InputError
+    from ..hardware import hardware_procam as procam_mod
+    from ..hardware import remembered as rem
+    from ..watch import Watcher, camera_view
+
+    window = getattr(sink, "window", None)
+    if window is None:
+        raise InputError("--watch on hardware watches the show's own window: leave out --out and "
+                         "--preview (or use --sim PRESET to watch the virtual set-up)")
+    camera = args.watch_camera
+    backend = "auto"
+    if camera is None:
+        record = rem.remembered(calib).get("camera") or {}
+        camera, backend = (rem.resolve_camera(None, record, None) if record.get("index") is not None
+                           else (0, "auto"))
+    elif str(camera).isdigit():
+        camera = int(camera)
+    procam = procam_mod.HardwareProCam(camera, window=window, camera_size=tuple(calib.camera_size),
+                                       latency=rem.remembered_latency(calib),
+                                       camera_backend=backend)
+    if tuple(procam.camera_size) != tuple(calib.camera_size):
+        procam.close()
+        raise InputError(f"the watching camera gives {procam.camera_size[0]}x{procam.camera_size[1]} "
+                         f"frames; the calibration's camera was {calib.camera_size[0]}x"
+                         f"{calib.camera_size[1]}: use the calibration's camera (--watch-camera)")
+    # Threaded on the perf_counter clock: a look's picture is paired with the frame that was
+    # on the wall when the camera saw it (HardwareProCam.looked_at).
+    period = HARDWARE_LOOK_PERIOD if args.watch_period is None else args.watch_period
+    return Watcher(calib, camera_view(procam), period_s=period, threaded=True,
+                   recheck_s=min(period, HARDWARE_RECHECK)), procam
 
 
 def _screen(screen: int | None, calib) -> int:
@@ -276,7 +329,10 @@ def cmd_play(args) -> int:
                 bar.update(done - bar.n)
         cache = None if args.no_cache else (args.cache or True)
         shown = _with_preview(sink, args.preview)
-        if watcher is not None:
+        watch_procam = None
+        if args.watch and not args.sim:
+            watcher, watch_procam = _hardware_watcher(args, calib, sink)
+        elif watcher is not None:
             watcher.threaded = sink.realtime     # a window's frames must not wait for a look
         show = Show(comp, args.source, shown, loop=args.loop, exit_at_end=args.exit_at_end,
                     placement=placement, audio=not args.no_audio,
@@ -298,7 +354,10 @@ def cmd_play(args) -> int:
             if shown is not sink:
                 shown.close()
             if watcher is not None:
+                watcher.close()
                 _watch_summary(watcher, calib, args)
+            if watch_procam is not None:
+                watch_procam.close()
     for stats in all_stats:
         print(stats.summary())
     if args.stats and all_stats:

@@ -54,6 +54,9 @@ from .residual import ResidualReport, residual_report
 
 log = logging.getLogger(__name__)
 
+#: Frames kept while a look is in flight (a look takes the camera's latency plus a report).
+_HISTORY = 64
+
 #: The kinds of change the watcher tells apart, in the order it attributes a difference.
 KINDS = ("geometry", "light", "focus")
 
@@ -143,8 +146,30 @@ def camera_view(procam) -> Callable[[np.ndarray], np.ndarray]:
     """
     look = getattr(procam, "look", None)
     if callable(look):
-        return lambda shown: look()
+        return LiveView(procam)
     return procam.capture
+
+
+class LiveView:
+    """``look(shown_projector_frame)`` of a camera that watches a live show (``procam.look()``:
+    the camera frame of whatever the show's window shows, taken a little after the call).
+
+    :attr:`looked_at` (``procam.looked_at``, ``time.perf_counter`` seconds) says when the picture
+    the camera saw was on the wall: a :class:`Watcher` on the same clock compares the capture
+    with the frame it was offered last before then, not with the frame offered when the look
+    started (on moving content the two differ by the camera's latency).
+    """
+
+    def __init__(self, procam):
+        self.procam = procam
+
+    def __call__(self, shown: np.ndarray) -> np.ndarray:
+        return self.procam.look()
+
+    @property
+    def looked_at(self) -> float | None:
+        """When the last look's picture was on the wall (None before a look)."""
+        return getattr(self.procam, "looked_at", None)
 
 
 class Watcher:
@@ -154,8 +179,14 @@ class Watcher:
     ----------
     calib : the calibration the show starts with (never modified).
     look : ``look(shown_projector_frame) -> (Hc, Wc, 3) uint8`` the camera's view of the frame
-        the projector is showing (:func:`camera_view`).
+        the projector is showing (:func:`camera_view`). A look with a ``looked_at`` attribute
+        (:class:`LiveView`: the time, by ``clock``, its picture was on the wall) is paired,
+        when threaded, with the frame offered last by then.
     period_s : seconds between looks, by ``clock``.
+    recheck_s : seconds to the next look while a change is suspected (a look over a high
+        threshold waits for ``confirm``) or being mended (None: ``period_s``). A long
+        ``period_s`` with a short ``recheck_s`` keeps the watcher's cost low and still detects
+        within about ``period_s + (confirm - 1) · recheck_s`` plus the looks' own time.
     clock : seconds, monotonic (a simulated clock makes an evaluation deterministic).
     threaded : look, report and decide on a background thread (frames are not delayed; a
         look due while the last is still being worked on is skipped); False does it all in
@@ -181,17 +212,21 @@ class Watcher:
     """
 
     def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
-                 period_s: float = 0.25, clock: Callable[[], float] = time.monotonic,
+                 period_s: float = 0.25, clock: Callable[[], float] = time.perf_counter,
                  threaded: bool = True, thresholds: Thresholds | None = None, confirm: int = 2,
                  max_mends: int = 4, band_looks: int = 4,
-                 report: Callable[..., ResidualReport] = residual_report):
+                 report: Callable[..., ResidualReport] = residual_report,
+                 recheck_s: float | None = None):
         if not (math.isfinite(period_s) and period_s >= 0):
             raise InputError(f"period_s must be a number of seconds >= 0; got {period_s!r}")
+        if recheck_s is not None and not (math.isfinite(recheck_s) and recheck_s >= 0):
+            raise InputError(f"recheck_s must be a number of seconds >= 0 or None; got {recheck_s!r}")
         if confirm < 1:
             raise InputError(f"confirm must be >= 1; got {confirm!r}")
         self.calib = calib
         self.look = look
         self.period_s = float(period_s)
+        self.recheck_s = self.period_s if recheck_s is None else float(recheck_s)
         self.clock = clock
         self.threaded = bool(threaded)
         self.th = thresholds or Thresholds()
@@ -215,6 +250,9 @@ class Watcher:
         self._light_base: list[tuple[float, float]] = []
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        # (show time, frame) offered since the look in flight started, for a look that says
+        # when its picture was on the wall (LiveView.looked_at)
+        self._shown: list[tuple[float, np.ndarray]] = []
 
     # ------------------------------------------------------------------ the Player's side
     @property
@@ -231,13 +269,21 @@ class Watcher:
         if not self.trusted:
             self.untrusted_frames += 1
         t = float(self.clock())
-        if t - self._last_look < self.period_s:
+        pairs = self.threaded and hasattr(self.look, "looked_at")
+        if self.threaded and self._thread is not None and self._thread.is_alive():
+            if pairs:
+                with self._lock:
+                    self._shown = (self._shown + [(t, np.array(shown, copy=True))])[-_HISTORY:]
+            return False
+        with self._lock:
+            hurry = bool(self._active) or any(self._suspect.values())
+        if t - self._last_look < (self.recheck_s if hurry else self.period_s):
             return False
         if self.threaded:
-            if self._thread is not None and self._thread.is_alive():
-                return False
             self._last_look = t
             frame = np.array(shown, copy=True)
+            with self._lock:
+                self._shown = [(t, frame)] if pairs else []
             self._thread = threading.Thread(target=self._work, args=(frame, t),
                                             name="rtdefocus-watch", daemon=True)
             self._thread.start()
@@ -260,9 +306,22 @@ class Watcher:
 
     def _work(self, frame: np.ndarray, t: float) -> None:
         try:
-            self.step(frame, self.look(frame), t)
+            capture = self.look(frame)
+            frame = self._on_the_wall(frame)
+            self.step(frame, capture, t)
         except BaseException as exc:          # handed to the Player's thread by poll / offer
             self._error = exc
+
+    def _on_the_wall(self, frame: np.ndarray) -> np.ndarray:
+        """The frame offered last by the time the look's picture was on the wall (``frame``,
+        the one the look started with, when the look does not say when that was)."""
+        at = getattr(self.look, "looked_at", None)
+        with self._lock:
+            shown, self._shown = self._shown, []
+        if at is None:
+            return frame
+        before = [f for ts, f in shown if ts <= at]
+        return before[-1] if before else frame
 
     def _raise_error(self) -> None:
         if self._error is not None:
