@@ -136,3 +136,13 @@ def test_dense_masks_the_far_wall_and_needs_no_warning(tmp_path, small_sim):
     g = calib.meta["geometry"]
     assert g["options"]["dense"] and calib.n_planes == 2
     assert g["unfit"]["fraction"] > 0.05 and not calib.meta.get("warnings")
+
+
+def test_the_api_takes_a_calibration_or_its_file_for_the_lens(tmp_path):
+    from rtdefocus.calib.geometry.lens import lens_from
+
+    _geometry_file(tmp_path / "flat.npz", (512, 384), (-0.05, 0.01))
+    loaded = Calibration.load(tmp_path / "flat.npz")
+    for source in (loaded, tmp_path / "flat.npz", str(tmp_path / "flat.npz"), (-0.05, 0.01)):
+        assert lens_from(source, (512, 384)) == (-0.05, 0.01)
+    assert lens_from(None) is None
