@@ -17,6 +17,7 @@ from ..procam import ProCam
 from .capture import Capturer, ProgressFn
 from .diagnose import explain, view_warning
 from .file import Calibration
+from .geometry.lens import lens_from
 from .geometry.stage import GeometryOptions, calibrate_geometry
 from .psf import PsfOptions, calibrate_psf
 from .radiometry.exposure import check_geometry_drift
@@ -75,7 +76,9 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         Stage options, passed to the stage whose options dataclass has that field
         (:class:`~.geometry.GeometryOptions`, :class:`~.radiometry.RadiometryOptions`,
         :class:`~.psf.PsfOptions`): geometry ``line_spacing``, ...; psf ``layout``
-        ("default", "paper", "dense"), ...
+        ("default", "paper", "dense"), ...; geometry ``lens`` also takes a
+        :class:`Calibration` or the path of a calibration file, whose measured lens is used
+        (:func:`~.geometry.lens.lens_from`).
 
     Returns
     -------
@@ -108,6 +111,9 @@ def calibrate(procam: ProCam, *, stages: tuple[str, ...] = STAGES,
         raise InputError(f"stages must include 'geometry' and be among {STAGES}; got {stages}")
     # Sort the options out before the first capture: a misspelt option must not cost a whole
     # calibration (minutes on real hardware) before it is reported.
+    if options.get("lens") is not None:
+        # A calibration (or its file) gives its measured lens; the capture set records numbers.
+        options["lens"] = lens_from(options["lens"], tuple(procam.camera_size))
     chosen = {s: STAGE_TABLE[s] for s in STAGES if s in stages}
     per_stage = {s: {k: options.pop(k) for k in list(options) if k in st.option_names()}
                  for s, st in chosen.items()}
@@ -171,7 +177,7 @@ def _run_stages(procam, chosen: dict, per_stage: dict, cap: Capturer) -> Calibra
     warning = view_warning(cap)
     if warning:
         log.warning("calibration done, but %s", warning)
-        calib.meta["warnings"] = [warning]
+        calib.meta.setdefault("warnings", []).append(warning)
     log.info("calibration done: %d captures %s, %s", cap.total, cap.counts, calib.meta["seconds"])
     return calib
 

@@ -143,6 +143,8 @@ examples:
   rtdefocus calibrate --camera 0 --screen 1 --camera-size 1920x1080 --fourcc MJPG --lock -o s.npz
   rtdefocus calibrate --camera 0 --screen 1 -o s.npz --save-captures caps   keep every capture
   rtdefocus calibrate --from-captures caps -o s2.npz          redo it from them, bit for bit
+  rtdefocus calibrate --sim gap -o gap.npz --dense            mask what no wall fits (far wall)
+  rtdefocus calibrate --camera 0 --screen 1 -o s.npz --lens-from flat.npz   a lens measured once
 writes setup.npz and, next to it (or in --diagnostics DIR), setup_geometry.png: the camera view
 with the detected lines, kinks, fold, the two planes and the 4:3 / 16:9 display rectangles;
 setup_camera.png: the camera's and the projector's response curves, the lens's distortion grid
@@ -195,7 +197,27 @@ def add_calibrate(sub):
     p.add_argument("--flat", dest="residual", action="store_false",
                    help="model each surface as an exact plane (no smooth residual for walls that "
                    "bow or sag a little)")
+    p.add_argument("--dense", action="store_true", default=None,
+                   help="also project Gray code plus phase shift (28 more captures) and fit every "
+                   "lit camera pixel; a region no wall fits (a far wall through a gap) is masked")
+    lens = p.add_mutually_exclusive_group()
+    lens.add_argument("--lens", type=_lens, metavar="K1,K2", help="the camera lens's radial "
+                      "distortion, as measured once, instead of estimating it from the walls "
+                      "(which pillowed walls mislead); a negative k1 as --lens=-0.05,0")
+    lens.add_argument("--lens-from", metavar="FILE.npz", help="take the lens measured by an "
+                      "earlier calibration of this camera, e.g. one made on a flat wall")
     p.set_defaults(func=cmd_calibrate, residual=None)
+
+
+def _lens(text: str) -> tuple[float, float]:
+    from ..calib.geometry.lens import check_lens_option
+
+    try:
+        return check_lens_option([float(v) for v in text.split(",")])
+    except (ValueError, InputError):
+        raise argparse.ArgumentTypeError(f"--lens takes k1,k2: two numbers within -1..1 "
+                                         f"separated by a comma, e.g. --lens=-0.05,0; got "
+                                         f"{text!r}") from None
 
 
 def _planes(text: str):
@@ -316,7 +338,8 @@ def cmd_calibrate(args) -> int:
 
     stages = args.stages or STAGES
     # Only the options given: a replay keeps the saved ones for the rest.
-    options = {k: v for k, v in (("planes", args.planes), ("residual", args.residual))
+    options = {k: v for k, v in (("planes", args.planes), ("residual", args.residual),
+                                 ("dense", args.dense), ("lens", args.lens or args.lens_from))
                if v is not None}
     procam = None
     if args.from_captures is not None:
@@ -368,6 +391,9 @@ def cmd_calibrate(args) -> int:
             if g.get("fold_disagreement_px") is not None else "")
     print(f"geometry: {calib.n_planes} plane(s), reprojection RMS {rms} camera px{fold}, "
           f"{g.get('lines_found')} of {g.get('lines_expected')} lines")
+    lens = g.get("distortion") or {}
+    if lens.get("given"):
+        print(f"lens k1 {lens['k1']:.4f}, k2 {lens['k2']:.4f} as given")
     exposure = calib.meta.get("exposure")
     if exposure:
         print(f"the white frame clipped: the camera's exposure was turned down from "

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -36,7 +37,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["lens_k", "ideal_points", "observed_points", "observed_maps", "undistort_image",
            "ideal_view", "lit_mask_observed", "undistort_line", "undistort_detection",
-           "fit_with_lens", "fit_with_known_lens", "check_lens_option", "max_displacement",
+           "fit_with_lens", "fit_with_known_lens", "check_lens_option", "lens_from", "max_displacement",
            "MIN_EFFECT_PX", "MIN_EXPLAINED"]
 
 #: Largest displacement (camera px, at the frame corners) of a distortion that is not worth
@@ -300,6 +301,46 @@ def check_lens_option(lens) -> tuple[float, float] | None:
         raise InputError(f"lens must be the camera's radial distortion (k1, k2), two finite "
                          f"numbers within -1..1 (a calibration's camera_distortion); got {lens!r}")
     return k
+
+
+def lens_from(source, camera_size: tuple[int, int] | None = None) -> tuple[float, float] | None:
+    """The ``lens`` option from what a user gives: None, (k1, k2), or a calibration (a
+    :class:`~rtdefocus.calib.file.Calibration` or the path of its file) whose measured lens
+    (``camera_distortion``) is taken, e.g. one made once on flat walls or a wall chart.
+
+    ``camera_size`` (width, height), when given, is the camera being calibrated: the lens is
+    normalised to the frame's corners, so a calibration of another frame shape is refused.
+
+    Raises
+    ------
+    InputError
+        Malformed (k1, k2), or a calibration that holds no lens (an older file, or one not made
+        by the geometry stage) or was made at another frame shape.
+    CalibrationFileError
+        A path that is not a readable calibration file.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        from ..file import Calibration
+
+        source = Calibration.load(source)
+    if not hasattr(source, "camera_distortion"):
+        return check_lens_option(source)
+    path = source.meta.get("loaded_from", {}).get("path")
+    where = repr(path) if path else "the calibration"
+    if source.camera_distortion is None:
+        raise InputError(f"{where} holds no lens (camera_distortion): it is an older calibration "
+                         "or one not made by the geometry stage; calibrate on flat walls with this "
+                         "version (`rtdefocus calibrate ... --stages geometry -o flat.npz`) and "
+                         "take its lens, or give it as --lens K1,K2")
+    if camera_size is not None and tuple(source.camera_size) != tuple(camera_size):
+        (w0, h0), (w1, h1) = source.camera_size, camera_size
+        if abs(w0 * h1 - w1 * h0) > 0.01 * w0 * h1:
+            raise InputError(f"{where} was made with a {w0}x{h0} camera frame, this one is "
+                             f"{w1}x{h1}: its lens is normalised to another frame shape; "
+                             "calibrate the lens at this camera size")
+        log.warning("the lens of %s was measured at %dx%d, this camera frame is %dx%d (same "
+                    "shape: taken as it is)", where, w0, h0, w1, h1)
+    return check_lens_option(source.camera_distortion)
 
 
 def fit_with_known_lens(fit: Callable[[LineDetection], object], detection: LineDetection,

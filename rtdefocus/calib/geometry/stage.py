@@ -31,6 +31,7 @@ from .dense import DenseDecoder, DensePatterns
 from .fit import MAX_FOLD_DISAGREEMENT, GeometryDetail, check_planes_option, fit_geometry
 from .homography import estimate_radial_k1, estimate_radial_k12
 from .lens import check_lens_option, fit_with_known_lens, fit_with_lens
+from .stray import stray_light, stray_light_warning
 from .structured_light import LineDetection, LineDetector, LinePatterns
 
 log = logging.getLogger(__name__)
@@ -199,8 +200,8 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
 
     # A strong lens can fail the first fit: a 4x looser inlier distance still measures it.
     try:
-        return fit_lens(fit, detection, camera_size, bool(o.undistort),
-                        rough=lambda d: fit(d, 4.0 * ransac_threshold))
+        calib = fit_lens(fit, detection, camera_size, bool(o.undistort),
+                         rough=lambda d: fit(d, 4.0 * ransac_threshold))
     except CalibrationError as exc:
         if not residual:
             raise
@@ -216,7 +217,24 @@ def calibrate_geometry(calib: Calibration | None, capture: Capturer,
         except CalibrationError:
             raise exc from None
         calib.meta["geometry"]["nearly_flat"] = {"flat_fit_error": str(exc), "threshold": loose}
-        return calib
+    if not dense:       # the dense map masks such a region itself (meta["geometry"]["unfit"])
+        _warn_stray_light(calib, band)
+    return calib
+
+
+def _warn_stray_light(calib: Calibration, margin_px: float) -> None:
+    """Name a lit camera region that none of the planes explains (:mod:`.stray`) in
+    ``meta["geometry"]["stray_light"]``, ``meta["warnings"]`` and the log."""
+    detail = calib.geometry_detail
+    det = detail.detection
+    stats = stray_light(det.white, det.black, det.valid, calib.lit_polygon_cam, margin_px,
+                        detail.pts_cam_xy[detail.inliers])
+    if stats is None:
+        return
+    calib.meta["geometry"]["stray_light"] = stats
+    text = stray_light_warning(stats)
+    calib.meta.setdefault("warnings", []).append(text)
+    log.warning("geometry: %s", text)
 
 
 def _calibration(parts: dict, fit_stats: dict, detail: GeometryDetail, pats: LinePatterns,
