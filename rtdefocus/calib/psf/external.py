@@ -18,7 +18,7 @@ from ...errors import InputError
 from ..capture import check_geometry
 from ..file import Calibration
 from .dots import Measurement, measure_psfs
-from .pilot import _SUPPORT_A, _SUPPORT_B, RadiusModel, fold_code
+from .pilot import RadiusModel, fold_code, support_bound
 from .sampling import SamplePlan
 from .stage import Dots, PsfOptions, PsfRun, psf_options
 
@@ -125,10 +125,17 @@ def calibrate_psf_from_dots(calib: Calibration, captures, *, dot_size: int = 1,
         d = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
         np.fill_diagonal(d, np.inf)
         room = 0.5 * d.min(axis=1) - 3 - dot_size / 2.0
-        return np.clip((room - _SUPPORT_B) / _SUPPORT_A, 0.5, None)
+        b0, b1 = support_bound(np.array([0.0, 1.0]))      # affine in the radius: invert it
+        return np.clip((room - b0) / (b1 - b0), 0.5, None)
 
-    first = _measure(calib, caps, from_spacing, lut, dot_size)
     points = np.concatenate([p for p, _ in caps])
+    index = {}
+    for i, (x, y) in enumerate(points.tolist()):
+        if (x, y) in index:
+            raise InputError(f"the dot at projector pixel ({x}, {y}) is given twice; give each "
+                             "position once (average its frames instead)")
+        index[(x, y)] = i
+    first = _measure(calib, caps, from_spacing, lut, dot_size)
     ok = ~first.skipped
     multi = calib.n_planes > 1
     planes = calib.plane_of(points[:, 0], points[:, 1]).astype(int) if multi \
@@ -155,12 +162,6 @@ def calibrate_psf_from_dots(calib: Calibration, captures, *, dot_size: int = 1,
     plan = SamplePlan(layout="default", cross_fold=False, points=points, planes=planes,
                       kinds=np.array(["given"] * len(points)), radius=radius,
                       radius_signed=predicted(signed=True))
-    index = {}
-    for i, (x, y) in enumerate(points.tolist()):
-        if (x, y) in index:
-            raise InputError(f"the dot at projector pixel ({x}, {y}) is given twice; give each "
-                             "position once (average its frames instead)")
-        index[(x, y)] = i
     run = PsfRun(calib, None, o, lut, 0, model)
     run.fill(calib, ("default", False), plan, Dots(index, meas, 1, len(caps)))
     calib.meta["psf"]["layout"] = "given"
