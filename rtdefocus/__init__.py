@@ -35,6 +35,7 @@ _LAZY = {
     "calibrate_from_captures": ("rtdefocus.calib.captureset", "calibrate_from_captures"),
     "calibrate_from_correspondences": ("rtdefocus.calib.correspondences",
                                        "calibrate_from_correspondences"),
+    "calibrate_psf_from_dots": ("rtdefocus.calib.psf.external", "calibrate_psf_from_dots"),
     "Calibration": ("rtdefocus.calib.file", "Calibration"),
     "Compensator": ("rtdefocus.compensate.compensator", "Compensator"),
     "HardwareProCam": ("rtdefocus.hardware.hardware_procam", "HardwareProCam"),
@@ -54,7 +55,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "ProCam", "sim", "calibrate", "calibrate_from_captures",
-    "calibrate_from_correspondences", "Calibration", "Compensator",
+    "calibrate_from_correspondences", "calibrate_psf_from_dots", "Calibration", "Compensator",
     "HardwareProCam", "render",
     "RtDefocusError", "CalibrationError", "CalibrationFileError", "CaptureError",
     "CaptureSetError", "DeviceError", "InputError", "InputTypeError", "__version__",

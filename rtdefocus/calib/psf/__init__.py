@@ -7,6 +7,7 @@ Modules, one concept each:
 * :mod:`.sampling` — where the samples go (:func:`plan_samples`, :data:`LAYOUTS`);
 * :mod:`.dots` — dot patterns, their capture and the kernels cut out of them;
 * :mod:`.kernel_field` — the interpolation field (indices and weights per pixel);
+* :mod:`.external` — :func:`calibrate_psf_from_dots`: the stage from another rig's dot captures;
 * :mod:`.diagnostics` — the radius map and the stage's picture.
 """
 
