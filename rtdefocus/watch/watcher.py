@@ -164,7 +164,7 @@ class Watcher:
     confirm : successive looks over a high threshold that make a detection.
     band_looks : looks of a trusted, unchanging set-up that set the levels light and focus
         are judged against (until then neither is detected; a focus mend starts the focus
-        level again, with the new kernels).
+        level again, and a focus detection retracted starts it from its own looks).
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
@@ -479,9 +479,13 @@ class Watcher:
         scale = self._fit_scale(shown, capture, base)
         detail = {"kernel_scale": round(scale, 4)}
         if abs(scale - 1.0) < 0.04:
+            # The kernels explain this content: its band level is one of a right model (the
+            # ratio moves a few per cent with the content's spectrum), measured again from here.
+            self._band_base = [b for b in map(_band, reports) if math.isfinite(b)]
             return None, detail
-        # The band-pass level belongs to the old kernels: it is measured again with the new
-        # ones (until then focus is not judged, so the mend is not judged by the old level).
+        # The band level belongs to the old kernels and to the content it was read on (a
+        # compensated frame's spectrum): it is measured again with the new kernels, and until
+        # then focus is not judged.
         self._band_base = []
         return rescale_kernels(calib, scale), detail
 
