@@ -20,9 +20,9 @@ def oracle_calibration(procam):
     response ``(v/255)^gamma``, its albedo and ambient maps, and the camera's inverse
     response (``camera_lut``, as the radiometry stage measures it). Kernels: the simulator
     renders its blur on a grid of radii (:data:`~rtdefocus.sim.optics.RADIUS_STEP`), each
-    pixel blending the two grid kernels that bracket its radius with tent weights; those grid kernels are the PSFs here and
-    each pixel's two brackets and weights its ``pix_idx`` / ``pix_wts``, so ``F`` equals the
-    simulator's own (green-channel) blur to float precision.
+    pixel blending the two grid kernels that bracket its radius with tent weights; those grid
+    kernels are the PSFs here and each pixel's two brackets and weights its ``pix_idx`` /
+    ``pix_wts``, so ``F`` equals the simulator's own (green-channel) blur to float precision.
 
     Parameters
     ----------
