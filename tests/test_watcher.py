@@ -5,6 +5,7 @@ content with cuts, the update applied by the Player between two frames only, and
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import cv2
@@ -144,6 +145,22 @@ def test_each_change_is_detected_and_mended_from_the_content(preset, name):
         # radius grid of the truth's kernels does not zoom exactly: that best lies near 1.1).
         best = min(blur_error(rescale_kernels(calib, s), oracle) for s in (1.05, 1.1, 1.15))
         assert blur_error(w.calib, oracle) < 1.5 * best
+
+
+def test_light_off_in_the_calibration_is_no_change_and_one_change_is_one_detection():
+    """A calibration whose light is off by 10 % (no calibration is exact in it) raises nothing;
+    a room-light change then is one detection and one mend, relative to the levels read
+    before it, cleared by the next look that can tell."""
+    pc, calib = setup("webcam_cubicle")
+    calib = dataclasses.replace(calib, albedo_proj=calib.albedo_proj * np.float32(0.9))
+    w = play(pc, calib, 3.0, ("set_light", {"ambient": pc.ambient + 0.1}))
+    assert [(e.kind, e.action) for e in w.events] == [
+        ("light", "detect"), ("light", "mend"), ("light", "cleared")], w.events
+    assert w.trusted and w.false_alarms == 0
+    # the mend kept the calibration's own bias: albedo still 0.9 of the oracle's
+    oracle = sim.oracle_calibration(pc)
+    ratio = float(np.median(w.calib.albedo_proj / oracle.albedo_proj))
+    assert abs(ratio - 0.9) < 0.03, ratio
 
 
 @pytest.mark.parametrize("preset", ["cubicle", "webcam_cubicle"])
