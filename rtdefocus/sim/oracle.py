@@ -17,11 +17,12 @@ def oracle_calibration(procam):
     Geometry: the true homographies and folds (one fold line for two planes; every fold, with
     the planes on its sides, for three or more), and the lit outline from mapping the projector
     frame (cut at the folds) through them. Radiometry: the simulator's projector
-    response ``(v/255)^gamma``, its albedo and ambient maps. Kernels: the simulator renders its
-    blur on a grid of radii (:data:`~rtdefocus.sim.optics.RADIUS_STEP`), each pixel blending the two grid
-    kernels that bracket its radius with tent weights; those grid kernels are the PSFs here and
-    each pixel's two brackets and weights its ``pix_idx`` / ``pix_wts``, so ``F`` equals the
-    simulator's own (green-channel) blur to float precision.
+    response ``(v/255)^gamma``, its albedo and ambient maps, and the camera's inverse
+    response (``camera_lut``, as the radiometry stage measures it). Kernels: the simulator
+    renders its blur on a grid of radii (:data:`~rtdefocus.sim.optics.RADIUS_STEP`), each
+    pixel blending the two grid kernels that bracket its radius with tent weights; those grid
+    kernels are the PSFs here and each pixel's two brackets and weights its ``pix_idx`` /
+    ``pix_wts``, so ``F`` equals the simulator's own (green-channel) blur to float precision.
 
     Parameters
     ----------
@@ -98,6 +99,7 @@ def oracle_calibration(procam):
         H_cam_from_proj=H, H_proj_from_cam=H_inv, **folds,
         lit_polygon_cam=np.asarray(polygon, dtype=np.float64),
         response_lut=lut, ambient_proj=truth.ambient_proj.astype(np.float32),
+        camera_lut=np.tile(truth.camera_response, (3, 1)).astype(np.float32),
         albedo_proj=truth.albedo_proj.astype(np.float32),
         psf_points_proj=points, psf_plane=planes, psfs=psfs, pix_idx=idx, pix_wts=wts,
         meta={"source": "oracle", "preset": getattr(procam, "preset", None)},

@@ -194,8 +194,8 @@ class Watcher:
     thresholds : :class:`Thresholds`.
     confirm : successive looks over a high threshold that make a detection.
     band_looks : looks of a trusted, unchanging set-up that set the levels light and focus
-        are judged against (until then light is judged against a gain of 1 and no added
-        light, focus not at all; a light mend starts the light's level again).
+        are judged against (until then neither is detected; a focus mend starts the focus
+        level again, and a focus detection retracted starts it from its own looks).
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
@@ -392,8 +392,7 @@ class Watcher:
     def _light_ref(self) -> tuple[float, float]:
         """The gain and added light the reports read while the model was right (a calibration
         is rarely exact in its light: the levels are judged against these), or (1, 0) before
-        ``band_looks`` such looks and after a light mend (which makes the model explain the
-        light as it is)."""
+        ``band_looks`` such looks (then no light change is detected)."""
         if len(self._light_base) < self.band_looks:
             return 1.0, 0.0
         g, a = np.median(np.array(self._light_base), axis=0)
@@ -428,8 +427,11 @@ class Watcher:
         band = _band(r)
         focus = abs(band / base - 1.0) if base and math.isfinite(band) else 0.0
         psf = self.calib.has_psf
+        # Light is judged only against its measured levels: a calibration rarely explains
+        # the room's light exactly, and that is no change.
+        light_known = len(self._light_base) >= self.band_looks
         over = {"geometry": geo > th.geometry_px[0],
-                "light": gain > th.gain[0] or amb > th.ambient[0],
+                "light": light_known and (gain > th.gain[0] or amb > th.ambient[0]),
                 "focus": psf and focus > th.focus[0]}
         under = {"geometry": geo < th.geometry_px[1],
                  "light": gain < th.gain[1] and amb < th.ambient[1],
@@ -498,8 +500,10 @@ class Watcher:
             g_ref, a_ref = self._light_ref()
             if abs(gain / g_ref - 1) < th.gain[1] and abs(added - a_ref) < th.ambient[1]:
                 return None, detail
-            self._light_base = []
-            return mend_light(calib, gain, added), detail
+            # Relative to the levels read while the model was right (what the calibration
+            # never explained exactly stays as it was): the mended model reads those levels
+            # again, on any content, so the next look clears the change.
+            return mend_light(calib, gain / g_ref, (added - a_ref) / g_ref), detail
         if kind == "geometry":
             # Planes whose correlation peak is too low say nothing, as in _classify; a plane
             # no look could measure takes the mean of the others.
@@ -533,8 +537,15 @@ class Watcher:
         base = float(np.median(self._band_base))
         scale = self._fit_scale(shown, capture, base)
         detail = {"kernel_scale": round(scale, 4)}
-        if abs(scale - 1.0) < 0.02:
+        if abs(scale - 1.0) < 0.04:
+            # The kernels explain this content: its band level is one of a right model (the
+            # ratio moves a few per cent with the content's spectrum), measured again from here.
+            self._band_base = [b for b in map(_band, reports) if math.isfinite(b)]
             return None, detail
+        # The band level belongs to the old kernels and to the content it was read on (a
+        # compensated frame's spectrum): it is measured again with the new kernels, and until
+        # then focus is not judged.
+        self._band_base = []
         return rescale_kernels(calib, scale), detail
 
     def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, level: float,
