@@ -107,9 +107,5 @@ def oracle_calibration(procam):
     # The truth's homographies, fold and outline are in ideal camera pixels: its lens goes with
     # them, as a calibrated one would.
     calib.camera_distortion = np.asarray(getattr(truth, "distortion", (0.0, 0.0)), np.float64)
-    # The camera's true inverse response, as the radiometry stage measures it: what reads a
-    # capture back into light (the watcher's report), not what compensation uses.
-    if truth.camera_response is not None:
-        calib.camera_lut = np.tile(np.asarray(truth.camera_response, np.float32), (3, 1))
     calib.validate()
     return calib
