@@ -79,6 +79,12 @@ frames to recover after the cut), video.json and video.png (per-frame gain). Exa
   rtdefocus eval --video -o video_out            800x600 cubicle, 78 frames (a few minutes)
   rtdefocus eval --video --quick                 400x300, 30 frames (under a minute)
   rtdefocus eval --video --calibration cubicle.npz   calibrated instead of the oracle kernels
+drift (--drift): the clip (pans, a cut, stills) played frame by frame on a simulated clock while
+the set-up changes: projector knocked 0.3 deg + 3 px, camera 4 px, room light +10 %, blur radii
+x1.15, 8 s apart; rows: no watching, watching, an oracle re-calibrated at each event, geometry
+only; writes drift.md (detection delay, recovery, pattern frames per event; false alarms of an
+unchanged run), drift.json and drift.png (PSNR over time). Example:
+  rtdefocus eval --drift --preset webcam_cubicle --size 400x300 --false-alarm-s 120 -o drift_out
 layouts: default | paper (corners + fold, as the paper) | dense (grid) | cross_fold (blended
 across the fold: the geometry-blind baseline); the oracle (the simulator's true calibration) is
 the upper bound, --no-oracle leaves it out.
@@ -130,7 +136,21 @@ def add_eval(sub):
     v.add_argument("--calibration", metavar="FILE", help="a calibration file for the preset and "
                    "size instead of the simulator's oracle kernels")
     v.add_argument("--preset", default="cubicle", help="simulator preset (default cubicle)")
-    v.add_argument("--no-plot", action="store_true", help="skip video.png")
+    v.add_argument("--no-plot", action="store_true", help="skip video.png / drift.png")
+    d = p.add_argument_group("drift (--drift)")
+    d.add_argument("--drift", action="store_true", help="the show while the set-up changes: "
+                   "no watching, watching and an oracle over a timeline of events (see below); "
+                   "--preset, --size and --fps (one number, default 30) apply")
+    d.add_argument("--false-alarm-s", type=float, default=120.0, metavar="S",
+                   help="seconds of the unchanged set-up played to count false alarms (default "
+                   "120; 0 leaves it out)")
+    d.add_argument("--false-alarm-size", type=parse_size, metavar="WxH",
+                   help="projector size of the false-alarm run (default --size)")
+    d.add_argument("--separate", action="store_true", help="each event on a fresh set-up of its "
+                   "own (2 s, the event, 8 s to recover) instead of one set-up changed event after "
+                   "event")
+    d.add_argument("--duration", type=float, metavar="S",
+                   help="seconds of show (default: the last event + 8 s, 34 s)")
     p.set_defaults(func=cmd_eval)
 
 
@@ -183,7 +203,30 @@ def cmd_eval_video(args) -> int:
     return 0
 
 
+def cmd_eval_drift(args) -> int:
+    from ..study.eval_drift import run_drift_eval
+
+    fps = _numbers(args.fps, float) or (30.0,)
+    if len(fps) != 1:
+        raise RtDefocusError(f"--drift plays at one frame rate; got --fps {args.fps}")
+    with Progress(args.quiet) as progress:
+        result = run_drift_eval(args.output, preset=args.preset, size=args.size or (800, 600),
+                                camera_size=args.camera_size, fps=fps[0],
+                                duration_s=args.duration, separate=args.separate,
+                                false_alarm_s=args.false_alarm_s,
+                                false_alarm_size=args.false_alarm_size, seed=args.seed,
+                                plot=not args.no_plot, step=progress.step)
+    print()
+    print(result["markdown"].rstrip())
+    print("\nFiles:")
+    for f in result["files"]:
+        print(f"  {f}")
+    return 0
+
+
 def cmd_eval(args) -> int:
+    if args.drift:
+        return cmd_eval_drift(args)
     if args.video:
         return cmd_eval_video(args)
     from ..study.eval import run_eval

@@ -13,5 +13,8 @@ Modules, one concept each:
 * :mod:`.eval`, :mod:`.eval_layouts`, :mod:`.evalreport` — ``rtdefocus eval`` (layouts,
   convergence) and its report;
 * :mod:`.eval_video`, :mod:`.eval_video_report` — ``rtdefocus eval --video``: a moving clip
-  through the live player, and its report.
+  through the live player, and its report;
+* :mod:`.eval_drift`, :mod:`.eval_drift_report` — ``rtdefocus eval --drift``: the clip played
+  while the set-up changes (a timeline of events), with and without the watcher and against
+  an oracle re-calibrated at each event, and its report.
 """

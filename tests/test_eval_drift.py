@@ -1,0 +1,141 @@
+"""`rtdefocus eval --drift`: the show played through a timeline of set-up changes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rtdefocus.cli import main
+from rtdefocus.study.eval_drift import drift_segments, event_figures, run_drift_eval
+
+TINY = {"size": (160, 120), "fps": 10.0}
+BUMP = (0.5, "bump", {"projector_yaw_deg": 0.3, "projector_shift_px": 3.0})
+
+
+@pytest.fixture(scope="module")
+def bumped(tmp_path_factory):
+    """2 s of show at 160x120, 10 fps, a projector bump at 0.5 s (during the first still), no
+    watcher."""
+    out = tmp_path_factory.mktemp("drift")
+    result = run_drift_eval(out, **TINY, duration_s=2.0, events=[BUMP],
+                            rows=("none", "oracle", "geometry"), false_alarm_s=0)
+    return out, result
+
+
+def _psnr(result, row, t):
+    return next(r["psnr"][row] for r in result["frames"] if abs(r["t"] - t) < 1e-9)
+
+
+def test_clip_cycle_has_pans_a_cut_and_stills():
+    segs = drift_segments(30.0)
+    assert [s.kind for s in segs] == ["still", "pan", "cut", "zoom", "fade"]
+    assert sum(s.frames for s in segs) == 240           # an 8 s cycle at 30 fps
+
+
+def test_oracle_recovers_and_stale_calibration_degrades(bumped):
+    """Before the bump every row shows the original calibration; after it the stale one is far
+    worse than the oracle on every frame, and the oracle (re-calibrated, solve restarted) is back
+    to its pre-bump quality within 0.4 s on the same still picture."""
+    _, result = bumped
+    frames = result["frames"]
+    before = [r for r in frames if r["t"] < 0.5]
+    after = [r for r in frames if r["t"] >= 0.5]
+    assert all(r["psnr"]["none"] == r["psnr"]["oracle"] for r in before)
+    assert all(r["psnr"]["none"] < r["psnr"]["oracle"] - 3.0 for r in after)
+    assert _psnr(result, "oracle", 0.9) > _psnr(result, "oracle", 0.4) - 1.0
+    # Compensation still beats geometry only with the fresh calibration.
+    assert _psnr(result, "oracle", 0.9) > _psnr(result, "geometry", 0.4)
+    (ev,) = result["events"]
+    assert ev["kind"] == "bump" and ev["t"] == pytest.approx(0.5)
+    assert ev["none_vs_oracle_db"] < -3.0
+
+
+def test_report_files(bumped):
+    out, result = bumped
+    assert {p.split("/")[-1] for p in result["files"]} == {"drift.md", "drift.json", "drift.png"}
+    md = (out / "drift.md").read_text()
+    assert "| bump: projector 0.3°, projector 3 px | 0.5 |" in md
+    data = json.loads((out / "drift.json").read_text())
+    assert len(data["frames"]) == 20 and data["events"][0]["kind"] == "bump"
+    assert data["rows"]["oracle"] == pytest.approx(np.mean([r["psnr"]["oracle"]
+                                                            for r in result["frames"]]))
+    assert (out / "drift.png").stat().st_size > 10_000
+
+
+def test_event_figures_from_records():
+    """Recovery: the first frame from which the watch row stays within 0.5 dB of the oracle;
+    worst vs geometry only: before the first update; detection: the watcher's first detection."""
+    psnr = {"oracle": [30, 30, 30, 30, 30], "watch": [29, 28, 29.6, 29.7, 29.8],
+            "geometry": [29.0, 28.2, 29, 29, 29], "none": [29, 25, 25, 25, 25]}
+    play = {"rows": tuple(psnr), "duration_s": 5.0, "fps": 1.0,
+            "records": [{"t": float(i), "psnr": {k: v[i] for k, v in psnr.items()},
+                         "trusted": i != 1} for i in range(5)],
+            "events": [{"t": 0.0, "kind": "set_light", "params": {"ambient": 0.2}}],
+            "watch_events": [{"t": 1.0, "kind": "light", "action": "detect"},
+                             {"t": 2.0, "kind": "light", "action": "mend", "pattern_frames": 3}],
+            "updates": [{"t": 2.0}]}
+    (fig,) = event_figures(play)
+    assert fig["recovered_s"] == 2.0
+    assert fig["detected_s"] == 1.0 and fig["detected_as"] == "light"
+    assert fig["mended_s"] == 2.0 and fig["pattern_frames"] == 3
+    assert fig["detections"] == 1 and fig["geometry_only_s"] == 1.0
+    assert fig["worst_vs_geometry_db"] == pytest.approx(-0.2)
+    assert fig["none_vs_oracle_db"] == pytest.approx(np.mean([-1, -5, -5, -5, -5]))
+
+
+def test_cli_drift_runs(tmp_path, capsys):
+    """The command line: a short unchanged run writes the report (no events fall due)."""
+    rc = main(["-q", "eval", "--drift", "--size", "160x120", "--fps", "10", "--duration", "0.5",
+               "--false-alarm-s", "0", "--no-plot", "-o", str(tmp_path)])
+    assert rc == 0
+    assert (tmp_path / "drift.md").exists() and (tmp_path / "drift.json").exists()
+    assert "eval --drift" in capsys.readouterr().out
+
+
+def test_watch_row_mends_a_light_change(tmp_path):
+    """The room light rises by 0.1 of full white: the watcher detects it, and the watch row is
+    back within 0.5 dB of the oracle within 2 s, never more than 0.5 dB below geometry only
+    before its mend."""
+    from rtdefocus import sim
+
+    ambient = sim.VirtualProCam("cubicle", projector_size=TINY["size"],
+                                camera_size=(256, 192)).ambient
+    result = run_drift_eval(tmp_path, **TINY, duration_s=2.5, false_alarm_s=0, plot=False,
+                            events=[(0.5, "set_light", {"ambient": ambient + 0.1})])
+    (ev,) = result["events"]
+    assert ev["detected_s"] is not None and ev["detected_s"] <= 1.0
+    assert ev["detected_as"] == "light"
+    assert ev["recovered_s"] is not None and ev["recovered_s"] <= 2.0
+    assert ev["worst_vs_geometry_db"] >= -0.5
+    assert ev["pattern_frames"] == 0
+
+
+def test_unchanged_show_with_a_cut_raises_no_alarm():
+    """5 s of the unchanged set-up (still, pan, the cut at 4 s) through the watch row: no
+    detection, no update, every frame compensated."""
+    from rtdefocus.study.eval_drift import run_false_alarm
+
+    fa = run_false_alarm("cubicle", TINY["size"], TINY["fps"], 5.0)
+    assert fa["frames"] == 50
+    assert (fa["detections"], fa["updates"], fa["geometry_frames"]) == (0, 0, 0)
+
+
+def test_separate_plays_start_each_event_on_a_fresh_setup():
+    """Two events played separately: each play starts unchanged (none equals the oracle until its
+    event), the second event does not inherit the first one's bump, and the figures sit at the
+    events' places on the joined time axis."""
+    from rtdefocus.study.eval_drift import play_separately
+
+    play = play_separately("cubicle", TINY["size"], TINY["fps"],
+                           [BUMP, (3.0, "refocus", {"scale": 1.15})],
+                           ("none", "oracle"), lead_s=0.3, span_s=0.5)
+    recs = play["records"]
+    assert len(recs) == 16 and [r["frame"] for r in recs] == list(range(16))
+    assert [f["t"] for f in play["figures"]] == pytest.approx([0.3, 1.1])
+    for start in (0, 8):
+        assert all(r["psnr"]["none"] == r["psnr"]["oracle"] for r in recs[start:start + 3])
+    bumped, refocused = play["figures"]
+    assert bumped["none_vs_oracle_db"] < -3.0          # a moved picture
+    assert refocused["none_vs_oracle_db"] > -3.0       # a blur change only, no bump left over
