@@ -50,6 +50,7 @@ from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
 from ..reference.lut import decode_lut
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
+from .refit import refit_geometry
 from .residual import ResidualReport, residual_report
 
 log = logging.getLogger(__name__)
@@ -468,6 +469,9 @@ class Watcher:
                 if rms["camera"] < rms["projector"]:
                     detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
                     new = as_cam
+            # The shifts leave a turn's shear and scale: align the content to the sub-pixel.
+            new, left = refit_geometry(new, shown, capture, detail["moved"])
+            detail["refit_left_px"] = round(left, 4)
             return new, detail
         if not self._band_base:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
