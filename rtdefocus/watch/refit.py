@@ -31,7 +31,7 @@ from .residual import predictor_for
 
 log = logging.getLogger(__name__)
 
-__all__ = ["content_warps", "refit_geometry"]
+__all__ = ["content_warps", "refit_geometry", "which_moved"]
 
 # ECC stops after this many iterations or when the warp moves by less than this.
 _ECC_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-5)
@@ -42,7 +42,8 @@ def _translation(o) -> np.ndarray:
 
 
 def content_warps(calib: Calibration, shown: np.ndarray, capture: np.ndarray,
-                  min_pixels: int = 400) -> list[np.ndarray | None]:
+                  min_pixels: int = 400, start: np.ndarray | None = None
+                  ) -> list[np.ndarray | None]:
     """Per plane, the homography ``W_p`` (projector px, 3×3) with ``obs(W_p(y)) ≈ pred(y)`` on
     the plane's watched pixels, or None where the plane has too few of them or the alignment
     did not converge (content too plain).
@@ -52,6 +53,8 @@ def content_warps(calib: Calibration, shown: np.ndarray, capture: np.ndarray,
     calib : the calibration the observation is resampled with.
     shown : (Hp, Wp, 3) uint8, the projector frame shown when ``capture`` was taken.
     capture : (Hc, Wc, 3) uint8 camera frame.
+    start : (n, 2) per-plane content shifts (projector px, the residual report's) to start
+        from; the identity by default (the alignment converges over a pixel or two).
     """
     pred = predictor_for(calib)
     blurred = pred.blurred(shown)
@@ -64,7 +67,7 @@ def content_warps(calib: Calibration, shown: np.ndarray, capture: np.ndarray,
     a_g = np.ascontiguousarray(blurred.mean(axis=2), np.float32)
     b_g = np.ascontiguousarray(content.mean(axis=2), np.float32)
     out: list[np.ndarray | None] = []
-    for win in pred.windows:
+    for p, win in enumerate(pred.windows):
         if win is None or win.size < min_pixels:
             out.append(None)
             continue
@@ -73,6 +76,8 @@ def content_warps(calib: Calibration, shown: np.ndarray, capture: np.ndarray,
         b = np.ascontiguousarray(win.cut(b_g))
         mask = win.mask.astype(np.uint8)
         W = np.eye(3, dtype=np.float32)
+        if start is not None and np.all(np.isfinite(start[p])):
+            W[:2, 2] = start[p]
         try:
             _, W = cv2.findTransformECC(a, b, W, cv2.MOTION_HOMOGRAPHY, _ECC_CRITERIA, mask, 1)
         except cv2.error as exc:             # content too plain to align
@@ -151,3 +156,43 @@ def _largest_motion(calib: Calibration, warps: list[np.ndarray | None]) -> float
         c = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]], np.float64)
         worst = max(worst, float(np.linalg.norm(apply_h(W, c) - c, axis=1).max()))
     return worst
+
+
+def _grid(win, step: int = 8) -> np.ndarray:
+    ys, xs = np.nonzero(win.mask[::step, ::step])
+    y0, _, x0, _ = win.box
+    return np.stack([xs * float(step) + x0, ys * float(step) + y0], axis=1)
+
+
+def which_moved(calib: Calibration, warps: list[np.ndarray | None]) -> str | None:
+    """"projector" or "camera": which single motion explains the planes' content warps better
+    (camera px RMS), or None with fewer than two planes measured.
+
+    A projector turned about its centre or shifted moves its image by one homography in
+    projector pixels, the same for every plane; a moved camera moves its view by one
+    homography in camera pixels. Each hypothesis's common homography is fitted to all the
+    planes' points together; the one that leaves less is what moved (the wall's texture, which
+    a noisy camera blurs, is not needed to tell them apart)."""
+    pred = predictor_for(calib)
+    ys, cams, moved = [], [], []
+    for p, (W, win) in enumerate(zip(warps, pred.windows, strict=True)):
+        if W is None or win is None:
+            continue
+        y = _grid(win)
+        H = calib.H_cam_from_proj[p]
+        ys.append((p, y, apply_h(W, y)))
+        cams.append(apply_h(H, y))
+        moved.append(apply_h(H @ W, y))
+    if len(ys) < 2:
+        return None
+    P, _ = cv2.findHomography(np.concatenate([y for _, y, _ in ys]),
+                              np.concatenate([w for _, _, w in ys]), 0)
+    C, _ = cv2.findHomography(np.concatenate(cams), np.concatenate(moved), 0)
+    if P is None or C is None:
+        return None
+    err_p = np.concatenate([apply_h(calib.H_cam_from_proj[p] @ P, y) - m
+                            for (p, y, _), m in zip(ys, moved, strict=True)])
+    err_c = apply_h(C, np.concatenate(cams)) - np.concatenate(moved)
+    rms_p, rms_c = (float(np.sqrt(np.mean(e ** 2))) for e in (err_p, err_c))
+    log.debug("which moved: projector %.4f, camera %.4f camera px RMS", rms_p, rms_c)
+    return "camera" if rms_c < rms_p else "projector"
