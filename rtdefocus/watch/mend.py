@@ -74,10 +74,14 @@ def camera_motion(calib: Calibration, shifts_proj: np.ndarray) -> np.ndarray:
 
 def mend_camera(calib: Calibration, shift_cam) -> Calibration:
     """The calibration after the camera turned so that its view moved by ``shift_cam`` =
-    (dx, dy) camera px: one camera-side correction for every plane. The projector and the
-    walls did not move, so everything in projector space stays (the warp shows the content
-    where it was on the wall)."""
-    C = _translation(np.asarray(shift_cam, np.float64))
+    (dx, dy) camera px, or by a 3×3 camera homography (old camera px -> new): one camera-side
+    correction for every plane. The projector and the walls did not move, so everything in
+    projector space stays (the warp shows the content where it was on the wall)."""
+    shift_cam = np.asarray(shift_cam, np.float64)
+    C = shift_cam if shift_cam.shape == (3, 3) else _translation(shift_cam)
+    if not np.all(np.isfinite(C)):
+        raise InputError(f"a camera mend needs a finite shift (2,) or homography (3, 3); got "
+                         f"shape {shift_cam.shape}")
     C_inv = np.linalg.inv(C)
     H = np.einsum("ij,njk->nik", C, calib.H_cam_from_proj)
     H_inv = np.einsum("nij,jk->nik", calib.H_proj_from_cam, C_inv)

@@ -19,9 +19,10 @@ content, with no pattern on the screen:
 
 * light: albedo and ambient re-scaled by the report's gain and added room light;
 * geometry: a camera move is one camera-side correction for all planes, a projector move one
-  shift per plane with the folds kept consistent (:mod:`~rtdefocus.watch.mend`); which of the
-  two it was is decided by which mend explains the capture better (the walls move with a
-  camera move, not with a projector move);
+  per plane with the folds kept consistent (:mod:`~rtdefocus.watch.mend`); which of the two it
+  was is decided by which single homography (in camera or in projector pixels) explains the
+  planes' content warps better, and the mend is then refined to a few hundredths of a pixel by
+  direct alignment of the content (:mod:`~rtdefocus.watch.refit`);
 * focus: every kernel's radius rescaled by the factor that brings the band-pass ratio back to
   its level while the model was right.
 
@@ -50,6 +51,7 @@ from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
 from ..reference.lut import decode_lut
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
+from .refit import content_warps, refit_geometry, which_moved
 from .residual import ResidualReport, residual_report
 
 log = logging.getLogger(__name__)
@@ -523,7 +525,12 @@ class Watcher:
             detail["moved"] = "projector"
             new = mend_projector(calib, shifts)
             cam = camera_motion(calib, shifts)
-            if np.all(np.isfinite(cam)):
+            # One homography for all planes, in projector or in camera pixels, says which moved.
+            moved = which_moved(calib, content_warps(calib, shown, capture, start=shifts))
+            if moved == "camera" and np.all(np.isfinite(cam)):
+                detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
+                new = mend_camera(calib, cam.mean(axis=0))
+            elif moved is None and np.all(np.isfinite(cam)):
                 as_cam = mend_camera(calib, cam.mean(axis=0))
                 rms = {"camera": self.report(as_cam, shown, capture).rms_after,
                        "projector": self.report(new, shown, capture).rms_after}
@@ -531,6 +538,9 @@ class Watcher:
                 if rms["camera"] < rms["projector"]:
                     detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
                     new = as_cam
+            # The shifts leave a turn's shear and scale: align the content to the sub-pixel.
+            new, left = refit_geometry(new, shown, capture, detail["moved"])
+            detail["refit_left_px"] = round(left, 4)
             return new, detail
         if not self._band_base:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
