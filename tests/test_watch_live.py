@@ -14,8 +14,7 @@ from hardware_fakes import FakeDevice, FakeProjector
 from test_watcher import CHANGE_AT, CHANGES, FPS, TEXTURES, content, play, setup
 
 from rtdefocus import cli, sim
-from rtdefocus.watch import Watcher, camera_view
-from rtdefocus.watch.watcher import LiveView
+from rtdefocus.watch import LiveView, Watcher, camera_view
 
 DELAY = 3          # frames between a look's start and the picture the camera sees
 

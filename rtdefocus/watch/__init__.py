@@ -7,10 +7,10 @@ needs around it (:mod:`~rtdefocus.watch.session`)."""
 from .mend import mend_camera, mend_light, mend_projector, rescale_kernels
 from .predictor import ResidualPredictor
 from .residual import ResidualReport, observe_proj, predict_proj, predictor_for, residual_report
-from .session import FrameClock, save_watched, timeline_view, watched_path
-from .watcher import Thresholds, Watcher, WatchEvent, WatchUpdate, camera_view
+from .session import FrameClock, LiveView, camera_view, save_watched, timeline_view, watched_path
+from .watcher import Thresholds, Watcher, WatchEvent, WatchUpdate
 
-__all__ = ["FrameClock", "ResidualPredictor", "ResidualReport", "Thresholds", "WatchEvent",
-           "WatchUpdate", "Watcher", "camera_view", "mend_camera", "mend_light", "mend_projector",
-           "observe_proj", "predict_proj", "predictor_for", "rescale_kernels", "residual_report",
-           "save_watched", "timeline_view", "watched_path"]
+__all__ = ["FrameClock", "LiveView", "ResidualPredictor", "ResidualReport", "Thresholds",
+           "WatchEvent", "WatchUpdate", "Watcher", "camera_view", "mend_camera", "mend_light",
+           "mend_projector", "observe_proj", "predict_proj", "predictor_for", "rescale_kernels",
+           "residual_report", "save_watched", "timeline_view", "watched_path"]

@@ -1,6 +1,6 @@
-"""What a watched show needs around the :class:`~rtdefocus.watch.Watcher`: a clock of show
-time for shows that do not run in real time, a virtual set-up that changes on a timeline, and
-the mended calibration saved beside the original."""
+"""What a watched show needs around the :class:`~rtdefocus.watch.Watcher`: the camera's view of
+the show, a clock of show time for shows that do not run in real time, a virtual set-up that
+changes on a timeline, and the mended calibration saved beside the original."""
 
 from __future__ import annotations
 
@@ -15,6 +15,41 @@ from ..calib.file import Calibration, npz_path
 from ..errors import InputError
 
 log = logging.getLogger(__name__)
+
+
+def camera_view(procam) -> Callable[[np.ndarray], np.ndarray]:
+    """``look(shown_projector_frame) -> camera frame`` for a :class:`Watcher`.
+
+    A procam with a ``look()`` method (hardware: the camera frame of whatever the show's
+    window shows, no pattern projected) is asked for that; otherwise (the virtual set-up)
+    ``procam.capture`` renders the camera's view of the frame shown.
+    """
+    look = getattr(procam, "look", None)
+    if callable(look):
+        return LiveView(procam)
+    return procam.capture
+
+
+class LiveView:
+    """``look(shown_projector_frame)`` of a camera that watches a live show (``procam.look()``:
+    the camera frame of whatever the show's window shows, taken a little after the call).
+
+    :attr:`looked_at` (``procam.looked_at``, ``time.perf_counter`` seconds) says when the picture
+    the camera saw was on the wall: a :class:`Watcher` on the same clock compares the capture
+    with the frame it was offered last before then, not with the frame offered when the look
+    started (on moving content the two differ by the camera's latency).
+    """
+
+    def __init__(self, procam):
+        self.procam = procam
+
+    def __call__(self, shown: np.ndarray) -> np.ndarray:
+        return self.procam.look()
+
+    @property
+    def looked_at(self) -> float | None:
+        """When the last look's picture was on the wall (None before a look)."""
+        return getattr(self.procam, "looked_at", None)
 
 
 class FrameClock:
