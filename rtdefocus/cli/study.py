@@ -195,12 +195,7 @@ def cmd_eval_video(args) -> int:
             opts[key] = val
     with Progress(args.quiet) as progress:
         result = run_video_eval(args.output, step=progress.step, **opts)
-    print()
-    print(result["markdown"].rstrip())
-    print("\nFiles:")
-    for f in result["files"]:
-        print(f"  {f}")
-    return 0
+    return _print_result(result)
 
 
 def cmd_eval_drift(args) -> int:
@@ -216,12 +211,7 @@ def cmd_eval_drift(args) -> int:
                                 false_alarm_s=args.false_alarm_s,
                                 false_alarm_size=args.false_alarm_size, seed=args.seed,
                                 plot=not args.no_plot, step=progress.step)
-    print()
-    print(result["markdown"].rstrip())
-    print("\nFiles:")
-    for f in result["files"]:
-        print(f"  {f}")
-    return 0
+    return _print_result(result)
 
 
 def cmd_eval(args) -> int:
@@ -238,6 +228,16 @@ def cmd_eval(args) -> int:
     print()
     print("\n## ".join(parts[:2]).rstrip())
     print(f"\ndone in {result['seconds']:.0f} s; per-preset tables in eval.md. Files:")
+    for f in result["files"]:
+        print(f"  {f}")
+    return 0
+
+
+def _print_result(result: dict) -> int:
+    """The report's table and the files it wrote, on stdout (the tables are the output)."""
+    print()
+    print(result["markdown"].rstrip())
+    print("\nFiles:")
     for f in result["files"]:
         print(f"  {f}")
     return 0

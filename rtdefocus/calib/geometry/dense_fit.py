@@ -76,6 +76,21 @@ def fit_plane_homography(dense_set: tuple[np.ndarray, np.ndarray], cross_proj: n
     return H, inl, rms
 
 
+def model_camera_points(Hs: np.ndarray, residual_cam, layout_proj: PlaneLayout, px: np.ndarray,
+                        py: np.ndarray, projector_size) -> tuple[np.ndarray, np.ndarray]:
+    """Where the fitted model (each point's plane's homography plus its residual field, when
+    there is one) puts the projector points ``(px, py)`` in the camera."""
+    plane = layout_proj.label(px, py).astype(np.intp)
+    mx, my = apply_h_per_plane(Hs, plane, px, py)
+    if residual_cam is not None:
+        for p in range(len(Hs)):
+            on = plane == p
+            d = displacement(residual_cam[p], px[on], py[on], projector_size)
+            mx[on] += d[:, 0]
+            my[on] += d[:, 1]
+    return mx, my
+
+
 def unfit_region(dense: DenseMap, Hs: np.ndarray, layout_proj: PlaneLayout,
                  residual_cam: np.ndarray | None, projector_size: tuple[int, int],
                  limit: float = UNFIT_PX, step: int = 2) -> tuple[np.ndarray, dict]:
@@ -100,14 +115,7 @@ def unfit_region(dense: DenseMap, Hs: np.ndarray, layout_proj: PlaneLayout,
     ok = dense.valid[ys, xs]
     px = dense.proj_xy[ys[ok], xs[ok], 0].astype(np.float64)
     py = dense.proj_xy[ys[ok], xs[ok], 1].astype(np.float64)
-    plane = layout_proj.label(px, py).astype(np.intp)
-    mx, my = apply_h_per_plane(Hs, plane, px, py)
-    if residual_cam is not None:
-        for p in range(len(Hs)):
-            sel = plane == p
-            d = displacement(residual_cam[p], px[sel], py[sel], projector_size)
-            mx[sel] += d[:, 0]
-            my[sel] += d[:, 1]
+    mx, my = model_camera_points(Hs, residual_cam, layout_proj, px, py, projector_size)
     err = np.hypot(mx - xs[ok], my - ys[ok])
     small = np.zeros(ys.shape, np.uint8)
     small[ok] = err > limit
@@ -149,14 +157,7 @@ def outline_without(polygon_cam: np.ndarray, unfit_mask: np.ndarray, dense: Dens
     gone = cv2.morphologyEx(gone, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
     ys, xs = np.nonzero(gone)
     px, py = xs.astype(np.float64), ys.astype(np.float64)
-    plane = layout_proj.label(px, py).astype(np.intp)
-    mx, my = apply_h_per_plane(Hs, plane, px, py)
-    if residual_cam is not None:
-        for p in range(len(Hs)):
-            on = plane == p
-            d = displacement(residual_cam[p], px[on], py[on], projector_size)
-            mx[on] += d[:, 0]
-            my[on] += d[:, 1]
+    mx, my = model_camera_points(Hs, residual_cam, layout_proj, px, py, projector_size)
     cut = np.zeros((hc, wc), np.uint8)
     ix, iy = np.rint(mx).astype(np.int64), np.rint(my).astype(np.int64)
     inside = (ix >= 0) & (ix < wc) & (iy >= 0) & (iy < hc)
