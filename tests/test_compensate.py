@@ -359,7 +359,7 @@ def test_auto_falls_back_to_numpy_with_one_warning(cubicle, monkeypatch, caplog)
     import rtdefocus.cl.runtime as clrt
 
     monkeypatch.setattr(clrt, "opencl_available", lambda: (False, "no platform (test)"))
-    monkeypatch.setattr(compensator_mod, "_warned_no_opencl", False)
+    monkeypatch.setattr(clrt, "_fallback_warned", set())
     with caplog.at_level(logging.WARNING, logger="rtdefocus.compensate.compensator"):
         a = Compensator(calib, backend="auto", iterations=1)
         b = Compensator(calib, backend="auto", iterations=1)

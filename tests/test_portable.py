@@ -107,7 +107,7 @@ def test_no_opencl_runs_on_numpy_with_one_warning_naming_the_driver(monkeypatch,
 
     calib = virtual_calibration()
     monkeypatch.setattr(clrt, "opencl_available", lambda: (False, "pyopencl: no ICD loader"))
-    monkeypatch.setattr(compensator_mod, "_warned_no_opencl", False)
+    monkeypatch.setattr(clrt, "_fallback_warned", set())
     with caplog.at_level(logging.WARNING, logger="rtdefocus"):
         a = compensator_mod.Compensator(calib, iterations=1)
         b = compensator_mod.Compensator(calib, iterations=1)

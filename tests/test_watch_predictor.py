@@ -151,11 +151,10 @@ def test_without_a_device_auto_falls_back_to_numpy_with_one_warning(calib_and_fr
                                                                     monkeypatch, caplog):
     from rtdefocus.cl import runtime as cl_runtime
     from rtdefocus.errors import DeviceError
-    from rtdefocus.watch import predictor as predictor_mod
 
     calib, frame = calib_and_frame
     monkeypatch.setattr(cl_runtime, "opencl_available", lambda: (False, "no platform"))
-    monkeypatch.setattr(predictor_mod, "_warned_no_opencl", False)
+    monkeypatch.setattr(cl_runtime, "_fallback_warned", set())
     with caplog.at_level("WARNING", logger="rtdefocus.watch.predictor"):
         first = ResidualPredictor(calib)
         second = ResidualPredictor(calib)

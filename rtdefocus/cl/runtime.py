@@ -194,3 +194,29 @@ def opencl_available() -> tuple[bool, str]:
         return True, get_runtime().description
     except DeviceError as exc:
         return False, str(exc)
+
+
+#: What each caller does with NumPy when it fell back (``choose_backend``'s ``doing``): one
+#: warning per process for each.
+_fallback_warned: set[str] = set()
+
+
+def choose_backend(backend: str, doing: str, logger: logging.Logger) -> str:
+    """"opencl" or "numpy" for a requested ``backend`` ("auto", "opencl", "numpy").
+
+    "auto" falls back to NumPy when no OpenCL device is usable, with one warning per process
+    for each ``doing`` (e.g. "compensating"), logged on the caller's ``logger`` with the
+    driver to install; "opencl" then raises :class:`DeviceError`.
+    """
+    if backend == "numpy":
+        return "numpy"
+    ok, why = opencl_available()
+    if ok:
+        return "opencl"
+    if backend == "opencl":
+        raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
+    if doing not in _fallback_warned:
+        hint = "" if INSTALL_HINT in why else " " + INSTALL_HINT
+        logger.warning("no OpenCL device; %s with the (slow) NumPy backend: %s%s", doing, why, hint)
+        _fallback_warned.add(doing)
+    return "numpy"

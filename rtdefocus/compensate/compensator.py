@@ -28,7 +28,7 @@ import numpy as np
 from ..calib.file import Calibration
 from ..checks import check_choice, check_int, check_real
 from ..cl import runtime as cl_runtime
-from ..errors import CalibrationFileError, DeviceError, InputError, InputTypeError
+from ..errors import CalibrationFileError, InputError, InputTypeError
 from ..gl.warp import warp_image
 from ..reference.blur import trim_psfs
 from ..reference.lut import apply_headroom, decode_lut, encode_lut, headroom_params, increasing_lut
@@ -58,8 +58,6 @@ METHODS = ("ycbcr", "rgb", "wiener", "none")
 # per-frame budget (`iterations=`) still converges on still content.
 DEFAULT_ITERATIONS = {"fista": 40, "pg": 40}
 DEFAULT_WIENER_NSR = 0.1
-
-_warned_no_opencl = False
 
 
 class Compensator:
@@ -503,16 +501,4 @@ def _check_budget(iterations) -> None:
 
 
 def _resolve_backend(backend: str) -> str:
-    global _warned_no_opencl
-    if backend == "numpy":
-        return "numpy"
-    ok, why = cl_runtime.opencl_available()
-    if ok:
-        return "opencl"
-    if backend == "opencl":
-        raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
-    if not _warned_no_opencl:
-        hint = "" if cl_runtime.INSTALL_HINT in why else " " + cl_runtime.INSTALL_HINT
-        log.warning("no OpenCL device; compensating with the (slow) NumPy backend: %s%s", why, hint)
-        _warned_no_opencl = True
-    return "numpy"
+    return cl_runtime.choose_backend(backend, "compensating", log)

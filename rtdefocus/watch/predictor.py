@@ -25,7 +25,7 @@ import numpy as np
 from ..calib.file import Calibration
 from ..calib.radiometry.camera_response import linearize
 from ..calib.radiometry.stage import projector_to_camera_maps
-from ..errors import DeviceError, InputError
+from ..errors import InputError
 from ..reference.blur import blur_forward_filter2d, weight_maps
 from .align import PlaneWindow, band_ratio, coarse_shift, downsample_mask, plane_shift, watched_planes
 
@@ -36,7 +36,6 @@ __all__ = ["BACKENDS", "ResidualPredictor", "ResidualReport", "calibration_keys"
 
 BACKENDS = ("auto", "opencl", "numpy")
 
-_warned_no_opencl = False
 _runtime = None
 _runtime_lock = threading.Lock()
 
@@ -116,22 +115,10 @@ def _watch_runtime():
 def resolve_backend(backend: str) -> str:
     """"opencl" or "numpy" for a requested backend; "auto" falls back to NumPy with one warning
     per process when no OpenCL device is usable, "opencl" then raises DeviceError."""
-    global _warned_no_opencl
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}; got {backend!r}")
-    if backend == "numpy":
-        return "numpy"
     from ..cl import runtime as cl_runtime
-    ok, why = cl_runtime.opencl_available()
-    if ok:
-        return "opencl"
-    if backend == "opencl":
-        raise DeviceError(f"backend='opencl' requested but no OpenCL device is usable: {why}")
-    if not _warned_no_opencl:
-        log.warning("no OpenCL device; the watcher predicts the camera view with the (slow) "
-                    "NumPy backend: %s", why)
-        _warned_no_opencl = True
-    return "numpy"
+    return cl_runtime.choose_backend(backend, "the watcher predicts the camera view", log)
 
 
 def _check_frame(calib: Calibration, frame) -> np.ndarray:
