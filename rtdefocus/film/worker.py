@@ -52,16 +52,27 @@ def _compensator(job: Job):
     return _STATE["comp"]
 
 
+#: The render that started this worker (set by :func:`watch_parent` in a local pool's workers).
+_PARENT: int | None = None
+
+
+def _parent_gone() -> bool:
+    return _PARENT is not None and os.getppid() != _PARENT
+
+
 def watch_parent(parent_pid: int, period: float = 0.5) -> None:
     """End this worker process when the render that started it is gone (a local pool's
     initializer): a pool's worker holds both ends of its task pipe and would otherwise wait
     for tasks forever after a SIGKILL of its parent. The chunk it was on is left unfinished
     (under its temporary name), to be rendered again on resume."""
 
+    global _PARENT
+    _PARENT = parent_pid
+
     def watch():
         while True:
             time.sleep(period)
-            if os.getppid() != parent_pid:
+            if _parent_gone():
                 os._exit(1)
 
     threading.Thread(target=watch, name="rtdefocus-watch-parent", daemon=True).start()
@@ -92,6 +103,10 @@ def render_chunk(job: Job, chunk: Chunk) -> dict:
                     if i >= chunk.start:
                         writer.write(frame)
                         written += 1
+            if _parent_gone():
+                # The render died while this chunk was on: a queued task must not finish it
+                # in the watcher's period (resume renders it again).
+                os._exit(1)
             os.replace(tmp, out)
         finally:
             if tmp.exists():
