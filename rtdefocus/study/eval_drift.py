@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import logging
 import time
 from pathlib import Path
@@ -46,7 +45,6 @@ from pathlib import Path
 import numpy as np
 
 from .. import sim
-from ..calib.file import json_default
 from ..compensate import Compensator
 from ..errors import InputError
 from ..gl.warp import warp_image
@@ -54,6 +52,7 @@ from ..sim import Timeline, oracle_calibration
 from ..watch import Watcher
 from ..watch import camera_view as watch_look
 from .eval_video import Segment, make_clip
+from .evalreport import write_report
 from .machine import machine_info
 from .scores import camera_view, psnr
 
@@ -518,12 +517,4 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
         "frames": recs,
     }
     result["seconds"] = time.perf_counter() - t_start
-    result["markdown"] = drift_markdown(result)
-    files = [out / "drift.md", out / "drift.json"]
-    files[0].write_text(result["markdown"])
-    files[1].write_text(json.dumps({k: v for k, v in result.items() if k != "markdown"},
-                                   indent=1, default=json_default))
-    if plot:
-        files.append(plot_drift(result, out / "drift.png"))
-    result["files"] = [str(f) for f in files]
-    return result
+    return write_report(result, out, "drift", drift_markdown, plot_drift if plot else None)

@@ -36,7 +36,6 @@ frames); the warm and wall-clock modes are always run frame by frame.
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import statistics
 import time
@@ -47,11 +46,12 @@ import cv2
 import numpy as np
 
 from .. import sim
-from ..calib.file import Calibration, json_default
+from ..calib.file import Calibration
 from ..compensate import Compensator
 from ..errors import InputError
 from ..sim import oracle_calibration
 from ..stream.controls import IterationBudget
+from .evalreport import write_report
 from .machine import machine_info
 from .scores import camera_view, psnr, rect_mask
 
@@ -452,15 +452,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
         "frames": records,
     }
     result["seconds"] = time.perf_counter() - t_start
-    result["markdown"] = video_markdown(result)
-    files = [out / "video.md", out / "video.json"]
-    files[0].write_text(result["markdown"])
-    files[1].write_text(json.dumps({k: v for k, v in result.items() if k != "markdown"},
-                                   indent=1, default=json_default))
-    if plot:
-        files.append(plot_video(result, out / "video.png"))
-    result["files"] = [str(f) for f in files]
-    return result
+    return write_report(result, out, "video", video_markdown, plot_video if plot else None)
 
 
 def segment_summary(records: list[dict], segments, modes) -> dict:

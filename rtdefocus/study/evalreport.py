@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calib.file import json_default
 from .extras import need
 
 __all__ = ["eval_markdown", "plot_convergence", "LAYOUT_LABELS", "METHOD_SHORT"]
@@ -17,6 +18,23 @@ LAYOUT_LABELS = {
     "cross_fold": "the default samples of one region blended across the fold (geometry-blind)",
     "oracle": "the simulator's true geometry, response and kernels (the upper bound)"}
 METHOD_SHORT = {"none": "geometry only", "ycbcr": "ours", "rgb": "RGB LS", "wiener": "Wiener"}
+
+
+def write_report(result: dict, out: Path, stem: str, markdown, plot=None) -> dict:
+    """Write ``result`` as ``STEM.md`` (``markdown(result)``, also kept in ``result["markdown"]``),
+    ``STEM.json`` and, when ``plot`` is given, ``plot(result, STEM.png)``; ``result["files"]``
+    lists them. Returns ``result``."""
+    import json
+
+    result["markdown"] = markdown(result)
+    files = [out / f"{stem}.md", out / f"{stem}.json"]
+    files[0].write_text(result["markdown"])
+    files[1].write_text(json.dumps({k: v for k, v in result.items() if k != "markdown"},
+                                   indent=1, default=json_default))
+    if plot is not None:
+        files.append(plot(result, out / f"{stem}.png"))
+    result["files"] = [str(f) for f in files]
+    return result
 
 
 def new_figure(what: str, figsize: tuple[float, float], path: Path, hint: str = ""):
