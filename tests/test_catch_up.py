@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rtdefocus.stream import catch_up
-from rtdefocus.stream.catch_up import CATCH_UP_MARGIN_MIN, CATCH_UP_SHARE, CatchUp
+from rtdefocus.stream.catch_up import CATCH_UP_MARGIN_MIN, CATCH_UP_SHARE, WARM_UP_FRAMES, CatchUp
 from rtdefocus.stream.controls import IterationBudget
 from rtdefocus.stream.sources import Frame
 
@@ -33,11 +33,14 @@ class Clock:
         return self.t
 
 
-def play(monkeypatch, factors, *, rest, fps=30.0, still=30, fixed_margin=False):
+def play(monkeypatch, factors, *, rest, fps=30.0, still=30, fixed_margin=False,
+         steady_still=False):
     """Play ``still`` frames of one picture, then one new picture per frame, live at ``fps``;
     compensating frame i costs ``factors[i]`` times (``rest`` + iterations x PER_ITERATION) for
-    a new picture, (STILL_REST + iterations x PER_ITERATION) for a repeated one.
-    ``fixed_margin``: the catch-up without measured spread (its start margin).
+    a new picture, (STILL_REST + iterations x PER_ITERATION) for a repeated one (without the
+    factor with ``steady_still``: a still's refinement varies less than a moving frame). The
+    Player's warm-up times WARM_UP_FRAMES moving frames first, as costly as the first moving
+    frames. ``fixed_margin``: the catch-up without measured spread (its start margin).
     Returns ``(shown, lost, compensated)``: the frames shown, the moving frames never shown
     (dropped, not copies of a picture on the screen), the moving frames compensated."""
     clock = Clock()
@@ -45,9 +48,10 @@ def play(monkeypatch, factors, *, rest, fps=30.0, still=30, fixed_margin=False):
     n, period = len(factors), 1.0 / fps
     budget = IterationBudget(fps)
     if fixed_margin:
-        budget.cost_ratio = lambda quantile: None
+        budget.cost_ratio = lambda quantile, repeat=False: None
     cu = CatchUp(budget)
-    budget.update(rest + PER_ITERATION, PER_ITERATION, 1)          # the Player's warm-up
+    for f in factors[still:still + WARM_UP_FRAMES]:                 # the Player's warm-up
+        budget.update(f * (rest + PER_ITERATION), f * PER_ITERATION, 1)
     arrived, queued, shown, lost, compensated = 0, None, [], [], []
     prev_compensated = False
     while True:
@@ -72,8 +76,9 @@ def play(monkeypatch, factors, *, rest, fps=30.0, still=30, fixed_margin=False):
         if action == "geometry":
             clock.t += GEOMETRY
         elif action in ("compensate", "settle"):
-            solve = factors[i] * its * PER_ITERATION
-            cost = factors[i] * (STILL_REST if repeat else rest) + solve
+            f = 1.0 if steady_still and is_still else factors[i]
+            solve = f * its * PER_ITERATION
+            cost = f * (STILL_REST if repeat else rest) + solve
             clock.t += cost
             budget.update(cost, solve, its, repeat=repeat)
             if not repeat:
@@ -109,8 +114,33 @@ def test_a_steady_device_near_its_deadline_compensates_moving_frames(monkeypatch
     shown, lost, comp = play(monkeypatch, costs, rest=0.050)
     assert lost_fixed == [] and len(comp_fixed) == 0
     assert lost == [], lost
-    assert len(comp) >= n_moving // 2, (len(comp), n_moving)
+    # every other moving frame once the first CATCH_UP_FRESH after the still are past (39 of 80)
+    assert len(comp) >= (n_moving - catch_up.CATCH_UP_FRESH) // 2, (len(comp), n_moving)
     assert shown[-1] == len(costs) - 1
+
+
+def spread(n=110, seed=0):
+    """A CPU device: every frame's cost anywhere in 0.9-1.25 of its usual (50-62 ms for the same
+    moving frame at 800x600 on 2 PoCL cores)."""
+    return list(np.random.default_rng(seed).uniform(0.9, 1.25, n))
+
+
+def test_a_still_pictures_steady_costs_do_not_lower_a_moving_frames_margin(monkeypatch):
+    """A still picture whose refinements cost the same every time, then moving frames whose
+    costs spread 0.9-1.25x near their deadline (30 fps, the start alone 54 % of two periods),
+    on 12 devices (seeds): the moving frames' margin comes from their own spread (the warm-up's
+    moving frames, then the compensated ones), so none is lost, and most are compensated; had
+    the still's steady costs stood for them (a margin near its floor), frames would be lost.
+    MEASURED: 50-57 of 80 moving frames compensated; 5 runs of 12 lose frames with the still's
+    spread."""
+    runs = [play(monkeypatch, spread(seed=s), rest=0.036, steady_still=True) for s in range(12)]
+    assert all(lost == [] for _, lost, _ in runs), [lost for _, lost, _ in runs]
+    assert min(len(comp) for _, _, comp in runs) >= 42, [len(c) for _, _, c in runs]
+    own = IterationBudget.cost_ratio
+    monkeypatch.setattr(IterationBudget, "cost_ratio",
+                        lambda self, q, repeat=False: own(self, q, True) or own(self, q, repeat))
+    mixed = [play(monkeypatch, spread(seed=s), rest=0.036, steady_still=True) for s in range(12)]
+    assert sum(len(lost) for _, lost, _ in mixed) > 0, "the still's spread should lose frames"
 
 
 def test_the_margin_follows_the_measured_spread_both_ways():
@@ -125,7 +155,7 @@ def test_the_margin_follows_the_measured_spread_both_ways():
     assert cu.margin >= 1.5, cu.margin
     for f in steady(n=24, spread=0.01):
         budget.update(f * (0.030 + PER_ITERATION), f * PER_ITERATION, 1)
-    assert CATCH_UP_MARGIN_MIN <= cu.margin <= 1.15, cu.margin
+    assert CATCH_UP_MARGIN_MIN <= cu.margin <= catch_up.CATCH_UP_HEADROOM * 1.02, cu.margin
 
 
 def test_a_jittery_device_loses_no_moving_frame(monkeypatch):
@@ -139,7 +169,7 @@ def test_a_jittery_device_loses_no_moving_frame(monkeypatch):
     assert len(comp) >= 10, len(comp)
     _, lost_fixed, _ = play(monkeypatch, costs, rest=0.036, fixed_margin=True)
     assert lost_fixed, "the spikes should cost a frame under the start margin"
-    monkeypatch.setattr(IterationBudget, "cost_ratio", lambda self, q: 1.0)
+    monkeypatch.setattr(IterationBudget, "cost_ratio", lambda self, q, repeat=False: 1.0)
     _, lost_blind, _ = play(monkeypatch, costs, rest=0.036)
     assert lost_blind, "the spikes should cost frames under a steady device's margin"
 

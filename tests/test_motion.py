@@ -344,12 +344,17 @@ def test_fast_adjoint_ends_where_the_exact_one_does(calib, pictures):
 def test_warm_up_runs_the_moving_path_and_leaves_no_video_state(calib, pictures):
     """``Compensator.warm_up`` compensates a moving synthetic clip (its last frame starts from
     the motion, as a video's would) and forgets it: the next frame starts cold, as after
-    ``reset()``, and gives what a fresh Compensator gives."""
+    ``reset()``, and gives what a fresh Compensator gives. It reports every moving frame it
+    timed (``frames``: a live player measures the spread of their costs)."""
     a, _ = pictures
     comp = rd.Compensator(calib)
-    info = comp.warm_up(iterations=1)
+    info = comp.warm_up(iterations=1, frames=3)
     assert info["start"] == "motion" and info["iterations"] == 1
     assert {"warp", "solve", "total"} <= set(info["seconds"])
+    assert len(info["moving"]) == 3 and info["moving"][-1] == info["seconds"]
+    assert all(sec["total"] >= sec["solve"] > 0 for sec in info["moving"])
+    with pytest.raises(rd.InputError, match="frames"):
+        comp.warm_up(frames=0)
     frame = _crop(a, 50, 50)
     out = comp.compensate(frame, iterations=2)
     assert comp.last_info["start"] == "cold"

@@ -203,6 +203,20 @@ def test_live_source_faster_than_solver_drops_but_never_reorders(comp):
     assert sink.indices[-1] >= n - 3, "the loop fell behind the end of the stream"
 
 
+def test_a_live_array_source_stamps_each_frame_with_its_time_of_arrival():
+    """Frame i of a live ArraySource arrives at t0 + i / fps, and that is its ``t_read`` even
+    when it is read late (a busy reader): the deadlines the catch-up counts from it are those
+    of the frames' own clock."""
+    fps = 50.0
+    src = ArraySource(synthetic_frames(4), fps=fps, live=True)
+    first = src.read()
+    time.sleep(3.5 / fps)                               # the reader falls behind
+    rest = [src.read() for _ in range(3)]
+    for frame in rest:
+        assert frame.t_read == pytest.approx(first.t_read + frame.index / fps, abs=1e-9)
+    assert time.perf_counter() - rest[-1].t_read > 0   # read after it arrived
+
+
 def test_decoder_error_reaches_the_caller(comp):
     def frames():
         yield synthetic_frames(1)[0]
@@ -252,11 +266,12 @@ class PacedCompensator:
         self.last_info = info
         return out
 
-    def warm_up(self, iterations=1):
-        """The real warm-up, reporting the paced cost of its moving frame."""
-        info = dict(self.comp.warm_up(iterations=iterations))
+    def warm_up(self, iterations=1, frames=1):
+        """The real warm-up, reporting the paced cost of its moving frames."""
+        info = dict(self.comp.warm_up(iterations=iterations, frames=frames))
         solve = info["iterations"] * self.per_iteration
         info["seconds"] = {"solve": solve, "total": self.overhead + solve}
+        info["moving"] = [dict(info["seconds"]) for _ in info["moving"]]
         return info
 
 
@@ -392,7 +407,7 @@ def test_live_playback_warms_the_compensator_up_first(comp):
     calls = []
 
     class Spy(PacedCompensator):
-        def warm_up(self, iterations=1):
+        def warm_up(self, iterations=1, frames=1):
             calls.append(("warm_up", iterations))
             return {"iterations": 1, "seconds": {"solve": 0.004, "total": 0.024}}
 

@@ -181,10 +181,17 @@ MUTATIONS = [
              ("tests/test_stream.py::test_a_slow_device_keeps_up_with_geometry_only_frames",),
              "a late frame is always compensated, never shown with geometry only"),
     Mutation("catch-up-fixed-margin", "catch-up", "rtdefocus/stream/catch_up.py",
-             "        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE)\n",
+             "        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE, repeat=repeat)\n",
              "        ratio = None\n",
              ("tests/test_catch_up.py::test_a_steady_device_near_its_deadline_compensates_moving_frames",),
              "the safety margin ignores the measured spread of the costs"),
+    Mutation("catch-up-still-spread", "catch-up", "rtdefocus/stream/catch_up.py",
+             "        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE, repeat=repeat)\n",
+             "        ratio = (self.budget.cost_ratio(CATCH_UP_QUANTILE, repeat=True)\n"
+             "                 or self.budget.cost_ratio(CATCH_UP_QUANTILE, repeat=repeat))\n",
+             ("tests/test_catch_up.py::"
+              "test_a_still_pictures_steady_costs_do_not_lower_a_moving_frames_margin",),
+             "a still picture's steady costs set the moving frames' margin"),
     # ---------------------------------------------------------------- the GLSL warp
     Mutation("glsl-half-texel", "GLSL", "kernels/warp.glsl",
              "    vec2 st = q.xy / q.z;\n", "    vec2 st = q.xy / q.z + 0.5 / u_image_size;\n",

@@ -222,27 +222,45 @@ class Compensator:
         it on a seek or when frames stop coming in order."""
         self._prev_warped = None
 
-    def warm_up(self, iterations: int = 1) -> dict | None:
-        """Run the video path once, on three synthetic frames of the projector's size, moving,
-        so that its first-use costs (kernel builds on the device, the motion estimate's
-        thread and buffers) are paid now and not by the first moving frame of a video; then
-        :meth:`reset`. Returns the moving frame's :attr:`last_info` (its ``seconds`` stand for
-        a moving frame's cost at ``iterations``), or None when no solver runs (``method``
-        ``"wiener"`` / ``"none"``)."""
+    def warm_up(self, iterations: int = 1, frames: int = 1) -> dict | None:
+        """Run the video path on synthetic frames of the projector's size, moving, so that its
+        first-use costs (kernel builds on the device, the motion estimate's thread and buffers)
+        are paid now and not by the first moving frame of a video; then :meth:`reset`.
+
+        Parameters
+        ----------
+        iterations : solver iterations per frame.
+        frames : moving frames timed (at least 1): more of them measure how much the cost of
+            one moving frame varies on this device (a live player's safety margin).
+
+        Returns
+        -------
+        dict or None
+            The last moving frame's :attr:`last_info` (its ``seconds`` stand for a moving
+            frame's cost at ``iterations``), with ``"moving"``: the ``seconds`` of every timed
+            moving frame, in order; None when no solver runs (``method`` ``"wiener"`` /
+            ``"none"``).
+        """
         if self._solver is None:
             return None
+        frames = check_int(frames, "warm_up frames (moving frames timed)", lo=1)
         wp, hp = self.projector_size
         rng = np.random.default_rng(0)
         # smooth texture with edges (a flow estimate has something to follow), moved 4 px a
-        # frame; the second moving frame is the one timed (the first still pays some first uses)
+        # frame; the moving frames after the second are the ones timed (the first still pays
+        # some first uses)
+        shifts = [4 * k for k in range(frames + 2)]
         base = cv2.resize(rng.integers(0, 256, (hp // 16 + 2, wp // 16 + 2, 3), dtype=np.uint8),
-                          (wp + 8, hp), interpolation=cv2.INTER_CUBIC)
+                          (wp + shifts[-1], hp), interpolation=cv2.INTER_CUBIC)
         self.reset()
+        moving = []
         try:
-            for shift in (0, 4, 8):
+            for k, shift in enumerate(shifts):
                 self.compensate(np.ascontiguousarray(base[:, shift:shift + wp]),
                                 iterations=iterations)
-            return dict(self.last_info)
+                if k >= 2:
+                    moving.append(dict(self.last_info.get("seconds") or {}))
+            return {**self.last_info, "moving": moving}
         finally:
             self.reset()
             self._warp_cache = None

@@ -15,31 +15,38 @@ from __future__ import annotations
 import logging
 import time
 
-from .controls import IterationBudget
+from .controls import SPREAD_MIN, IterationBudget
 from .sources import Frame
 
 log = logging.getLogger(__name__)
 
 #: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
-#: ends before the frame after next arrives (two periods after it was read); otherwise it is
-#: shown with geometry only. The margin is the measured spread of the device's costs: the
-#: CATCH_UP_QUANTILE of the last compensated frames' measured / expected costs
-#: (:meth:`IterationBudget.cost_ratio`) with CATCH_UP_HEADROOM on top, at least
-#: CATCH_UP_MARGIN_MIN, so a steady device runs close to its deadline and a jittery one keeps
-#: the room its spikes need (one rare spike does not move a quantile: the late-frame step below
-#: answers it). Until enough frames are measured it is 1 / CATCH_UP_SHARE (1.43): a moving
-#: frame's spread on a CPU device (50-62 ms for the same work at 800x600 on 2 idle PoCL
-#: cores). Each compensated frame that still ends late multiplies it by CATCH_UP_MARGIN_STEP;
-#: that steps back after CATCH_UP_CALM moving frames without a late one, a wait that doubles
-#: with each late frame while it is raised (up to CATCH_UP_CALM_MAX). The margin stays within
-#: [CATCH_UP_MARGIN_MIN, CATCH_UP_MARGIN_MAX]. There are no blind probes: a frame is compensated
-#: only where the measured costs say it will be on time, so on a device that cannot keep up,
-#: moving content settles to geometry only and no frame is lost to a probe.
+#: ends before the frame after next arrives (two periods after it arrived); otherwise it is
+#: shown with geometry only. The margin is the measured spread of the device's costs for frames
+#: of the same kind (moving, or a repeated picture's refinement): the CATCH_UP_QUANTILE of the
+#: last compensated frames' measured / expected costs (:meth:`IterationBudget.cost_ratio`) with
+#: CATCH_UP_HEADROOM on top, at least CATCH_UP_MARGIN_MIN, so a steady device runs close to its
+#: deadline and a jittery one keeps the room its spikes need (one rare spike does not move a
+#: quantile: the late-frame step below answers it). A still picture's steady refinements never
+#: lower a moving frame's margin; the live player's warm-up times WARM_UP_FRAMES moving frames,
+#: so the first moving frames of a show are admitted by a moving frame's measured spread.
+#: Until enough frames of the kind are measured, and for the first CATCH_UP_FRESH moving frames
+#: after a still picture or at the start (a new shot's motion, its deadline estimate from other
+#: content), the margin is at least 1 / CATCH_UP_SHARE (1.43): a moving frame's spread on a CPU
+#: device (50-62 ms for the same work at 800x600 on 2 idle PoCL cores). Each compensated frame
+#: that still ends late multiplies it by CATCH_UP_MARGIN_STEP at once; that steps back after
+#: CATCH_UP_CALM moving frames without a late one, a wait that doubles with each late frame
+#: while it is raised (up to CATCH_UP_CALM_MAX). The margin stays within [CATCH_UP_MARGIN_MIN,
+#: CATCH_UP_MARGIN_MAX]. There are no blind probes: every piece of work beside the warp
+#: (iterations, or the start alone: the motion estimate and the carried correction) is done only
+#: where the measured costs with the margin say it will be on time, so on a device that cannot
+#: keep up, moving content settles to geometry only and no frame is lost to a probe.
 CATCH_UP_SHARE = 0.7
-CATCH_UP_QUANTILE, CATCH_UP_HEADROOM = 0.9, 1.1
+CATCH_UP_QUANTILE, CATCH_UP_HEADROOM = 0.95, 1.2
 CATCH_UP_MARGIN_MIN, CATCH_UP_MARGIN_MAX = 1.1, 4.0
 CATCH_UP_MARGIN_STEP = 1.25
 CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
+CATCH_UP_FRESH = 2
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
 #: long as that compensation takes with the safety margin: the frames a settle drops are copies
@@ -47,6 +54,19 @@ CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
 #: seldom does. Before it the picture is shown with geometry only, after it as compensated
 #: (refined further only where a refinement fits two periods).
 CATCH_UP_STILL_WAIT = 4
+#: Moving frames a live player's warm-up times (:meth:`rtdefocus.Compensator.warm_up`): the
+#: first sets the expected cost, the others measure its spread (SPREAD_MIN of them), so the
+#: first moving frames of a show are admitted by a moving frame's measured spread.
+WARM_UP_FRAMES = SPREAD_MIN + 1
+
+
+def learn_warm_up(budget: IterationBudget, info: dict) -> None:
+    """Feed ``budget`` the moving frames a warm-up timed (``info``: what
+    :meth:`rtdefocus.Compensator.warm_up` returns; without ``"moving"``, its one frame)."""
+    its = int(info.get("iterations", 0) or 0)
+    for sec in info.get("moving") or [info.get("seconds") or {}]:
+        if "total" in sec and "solve" in sec:
+            budget.update(sec["total"], sec["solve"], its, repeat=False)
 
 
 class CatchUp:
@@ -66,13 +86,21 @@ class CatchUp:
         self._calm_left = CATCH_UP_CALM
         self._still_since = 0                # index of the current picture's first frame
         self._settled = False                # ... and whether it was settled
+        self._fresh = 0                      # moving frames since the last still (0: none)
 
     @property
     def margin(self) -> float:
-        """The safety margin on expected costs (see :data:`CATCH_UP_SHARE`)."""
-        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE)
+        """The safety margin on a moving frame's expected cost (see :data:`CATCH_UP_SHARE`)."""
+        return self.margin_for(repeat=False)
+
+    def margin_for(self, repeat: bool) -> float:
+        """The safety margin on the expected cost of a frame of that kind (``repeat``: the
+        picture compensated just before, again)."""
+        ratio = self.budget.cost_ratio(CATCH_UP_QUANTILE, repeat=repeat)
         spread = (1.0 / CATCH_UP_SHARE if ratio is None
                   else max(CATCH_UP_MARGIN_MIN, CATCH_UP_HEADROOM * ratio))
+        if not repeat and 0 < self._fresh <= CATCH_UP_FRESH:
+            spread = max(spread, 1.0 / CATCH_UP_SHARE)
         return min(spread * self._raised, CATCH_UP_MARGIN_MAX)
 
     def new_picture(self, index: int) -> None:
@@ -96,10 +124,11 @@ class CatchUp:
         as that takes, else ``("geometry", None)``. Without measured costs:
         ``("compensate", iterations)``."""
         b = self.budget
+        self._fresh = 0 if still else self._fresh + 1
         rest = b.frame_seconds(0, repeat, deadline=True)
         if rest is None:
             return "compensate", iterations
-        margin = self.margin
+        margin = self.margin_for(repeat)
         left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - margin * rest
         per_it = margin * b.per_iteration
         fit = int(left / per_it) if per_it > 0 else iterations
@@ -120,6 +149,7 @@ class CatchUp:
         if left >= 0:
             return "compensate", 0
         return "geometry", None
+
 
     def judge(self, frame: Frame, compensated: bool) -> None:
         """After a moving frame: a compensated one that ended after the frame after next

@@ -98,8 +98,8 @@ class IterationBudget:
     answered at once, a fast one cautiously).
 
     For each frame timed for the deadline it also keeps how far its measured cost was from the
-    one expected for it (:meth:`cost_ratio`): the spread a safety margin on expected costs must
-    cover.
+    one expected for it (:meth:`cost_ratio`), per kind: the spread a safety margin on expected
+    costs must cover (a still picture's steady refinements say nothing of a moving frame's).
 
     A *repeated* frame (the same picture again: a paused video, a slide) skips the warp and the
     motion estimate, so its rest costs a fraction of a new frame's: the two kinds keep their own
@@ -123,7 +123,7 @@ class IterationBudget:
                                                        for k in (False, True)}
         self._iterations = {False: start, True: start}
         self._expected = {False: False, True: False}   # the kind's rest is only expected
-        self._ratios: collections.deque = collections.deque(maxlen=SPREAD_FRAMES)
+        self._ratios = {k: collections.deque(maxlen=SPREAD_FRAMES) for k in (False, True)}
 
     @property
     def iterations(self) -> int:
@@ -154,16 +154,19 @@ class IterationBudget:
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
-    def cost_ratio(self, quantile: float) -> float | None:
+    def cost_ratio(self, quantile: float, repeat: bool = False) -> float | None:
         """The ``quantile`` (0-1) of measured / expected seconds over the last
-        :data:`SPREAD_FRAMES` frames timed for the deadline, of either kind, each against its
+        :data:`SPREAD_FRAMES` frames of that kind timed for the deadline, each against the
         kind's :meth:`frame_seconds` (``deadline=True``) just before it was recorded; a kind's
         merely expected rest is no measure. The sample at or below the quantile: one spike
         among a few frames does not lift it. About 1 on a steady device, more on a jittery
-        one. None before :data:`SPREAD_MIN` such frames."""
-        if len(self._ratios) < SPREAD_MIN:
+        one. None before :data:`SPREAD_MIN` such frames of the kind: a moving frame (warp,
+        motion estimate, carry) varies more than a repeated picture's refinement, so one
+        kind's spread is no measure of the other's."""
+        ratios = self._ratios[bool(repeat)]
+        if len(ratios) < SPREAD_MIN:
             return None
-        return float(np.quantile(np.asarray(self._ratios), quantile, method="lower"))
+        return float(np.quantile(np.asarray(ratios), quantile, method="lower"))
 
     def expect(self, rest: float, repeat: bool = True) -> None:
         """An expected rest (seconds, all but the solve) for a kind not measured yet; the
@@ -192,7 +195,7 @@ class IterationBudget:
         if deadline and self._overhead[repeat] is not None and not self._expected[repeat]:
             expected = self.frame_seconds(iterations, repeat, deadline=True)
             if expected:
-                self._ratios.append(frame_seconds / expected)
+                self._ratios[repeat].append(frame_seconds / expected)
         if iterations > 0:
             self.per_iteration = self._ema(self.per_iteration, solve_seconds / iterations)
         rest = max(0.0, frame_seconds - solve_seconds)

@@ -66,7 +66,7 @@ from .. import __version__
 from ..errors import InputError
 from ..imageio import fit_image
 from .cache import SlideCache, calibration_fingerprint
-from .catch_up import CatchUp
+from .catch_up import WARM_UP_FRAMES, CatchUp, learn_warm_up
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .decoder import END, Decoder, Failure
 from .sinks import Sink
@@ -370,21 +370,19 @@ class Player:
                                      can_reshow=self._last_out is not None)
 
     def _warm_up(self) -> None:
-        """Live playback with an adaptive budget: run the Compensator's video path once before
-        the first frame (:meth:`Compensator.warm_up`), so that its first-use costs do not make
-        the first moving frame late, and start the budget from that moving frame's cost (not
-        from a still picture's, which is a fraction of it)."""
+        """Live playback with an adaptive budget: run the Compensator's video path before the
+        first frame (:meth:`Compensator.warm_up`), so that its first-use costs do not make the
+        first moving frame late, and start the budget from its moving frames' costs and their
+        spread (not from a still picture's, a fraction of it and steadier)."""
         warm_up = getattr(self.comp, "warm_up", None)
         if self.budget is None or not self.live or warm_up is None:
             return
         t0 = time.perf_counter()
-        info = warm_up(iterations=self.budget.minimum)
+        info = warm_up(iterations=self.budget.minimum, frames=WARM_UP_FRAMES)
         if not info:
             return
         sec = info.get("seconds") or {}
-        its = int(info.get("iterations", 0) or 0)
-        if "total" in sec and "solve" in sec:
-            self.budget.update(sec["total"], sec["solve"], its, repeat=False)
+        learn_warm_up(self.budget, info)
         self.stats.restart()                 # the frame rate counts from the first frame
         log.info("warmed up in %.2f s (a moving frame: %.0f ms)", time.perf_counter() - t0,
                  1e3 * sec.get("total", float("nan")))

@@ -77,7 +77,8 @@ class Pacer:
         self.rebase = rebase
         self._t0: float | None = None
 
-    def wait(self, index: int, fps: float) -> None:
+    def wait(self, index: int, fps: float) -> float:
+        """Wait for frame ``index``'s time; return that time (``perf_counter`` seconds)."""
         now = time.perf_counter()
         if self._t0 is None:
             self._t0 = now
@@ -86,3 +87,5 @@ class Pacer:
             time.sleep(due - now)
         elif self.rebase and now - due > 1.0 / fps:
             self._t0 = now - index / fps
+            due = now
+        return due

@@ -251,8 +251,9 @@ class ArraySource(Source):
     """Frames from memory (any iterable of RGB uint8 arrays): for programs and tests.
 
     With ``live=True`` and ``fps`` set it behaves like a camera: frame ``i`` becomes available
-    at ``t0 + i / fps`` (the first :meth:`read` sets ``t0``) and :meth:`read` waits for it, so a
-    consumer slower than ``fps`` falls behind exactly as it would behind a real camera.
+    at ``t0 + i / fps`` (the first :meth:`read` sets ``t0``; the frame's ``t_read``) and
+    :meth:`read` waits for it, so a consumer slower than ``fps`` falls behind exactly as it
+    would behind a real camera.
     """
 
     kind = "frames"
@@ -274,9 +275,13 @@ class ArraySource(Source):
             img = next(self._it)
         except StopIteration:
             return None
+        t_read = time.perf_counter()
         if self.live:
-            self._pacer.wait(self._index, self.fps)
-        frame = Frame(self._index, np.asarray(img), time.perf_counter())
+            # Stamped with its time of arrival, not the (later) moment this thread woke up:
+            # the frames after it arrive on the same clock, whatever the wake-up's delay
+            # (a busy CPU, the other thread holding the GIL), so that is what deadlines count from.
+            t_read = self._pacer.wait(self._index, self.fps)
+        frame = Frame(self._index, np.asarray(img), t_read)
         self._index += 1
         return frame
 

@@ -204,8 +204,13 @@ class SlowedCompensator:
         if not info:
             return info
         info = dict(info)
-        info["seconds"] = {k: v * self.factor for k, v in (info.get("seconds") or {}).items()}
+        info["seconds"] = self._times(info.get("seconds"))
+        if "moving" in info:                 # (a warm-up's timed frames)
+            info["moving"] = [self._times(sec) for sec in info["moving"]]
         return info
+
+    def _times(self, seconds: dict | None) -> dict:
+        return {k: v * self.factor for k, v in (seconds or {}).items()}
 
     def compensate(self, image, **kw):
         t0 = time.perf_counter()
@@ -214,8 +219,8 @@ class SlowedCompensator:
         self.last_info = self._scaled(self.comp.last_info)
         return out
 
-    def warm_up(self, iterations: int = 1):
-        return self._scaled(self.comp.warm_up(iterations=iterations))
+    def warm_up(self, iterations: int = 1, frames: int = 1):
+        return self._scaled(self.comp.warm_up(iterations=iterations, frames=frames))
 
 
 def play_window(calib, backend: str, clip, fps: float, geometry_only: bool = False,
