@@ -407,7 +407,7 @@ def test_live_playback_warms_the_compensator_up_first(comp):
     calls = []
 
     class Spy(PacedCompensator):
-        def warm_up(self, iterations=1, frames=1):
+        def warm_up(self, iterations=1):         # (times one moving frame: no ``frames``)
             calls.append(("warm_up", iterations))
             return {"iterations": 1, "seconds": {"solve": 0.004, "total": 0.024}}
 
@@ -426,6 +426,13 @@ def test_live_playback_warms_the_compensator_up_first(comp):
     calls.clear()
     play(spy, ArraySource(synthetic_frames(3)), RecordingSink())
     assert calls and all(c[0] == "compensate" for c in calls)
+    # a warm-up that times several moving frames gives their spread before the first frame
+    paced = PacedCompensator(comp, overhead=0.005, per_iteration=0.002)
+    player = Player(paced, ArraySource(synthetic_frames(3), fps=30.0, live=True),
+                    RecordingSink(realtime=True))
+    assert player.budget.cost_ratio(0.95) is None
+    player._warm_up()
+    assert player.budget.cost_ratio(0.95) == pytest.approx(1.0)     # (paced: all alike)
 
 
 def test_budget_deadline_is_the_median_of_the_last_frames():

@@ -12,6 +12,7 @@ current picture); :class:`~rtdefocus.stream.loop.Player` owns one and asks it pe
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 
@@ -60,13 +61,23 @@ CATCH_UP_STILL_WAIT = 4
 WARM_UP_FRAMES = SPREAD_MIN + 1
 
 
-def learn_warm_up(budget: IterationBudget, info: dict) -> None:
-    """Feed ``budget`` the moving frames a warm-up timed (``info``: what
-    :meth:`rtdefocus.Compensator.warm_up` returns; without ``"moving"``, its one frame)."""
-    its = int(info.get("iterations", 0) or 0)
-    for sec in info.get("moving") or [info.get("seconds") or {}]:
-        if "total" in sec and "solve" in sec:
-            budget.update(sec["total"], sec["solve"], its, repeat=False)
+def warm_up(comp, budget: IterationBudget) -> dict | None:
+    """Run ``comp.warm_up`` at the budget's minimum iterations, timing WARM_UP_FRAMES moving
+    frames where it takes ``frames`` (a Compensator does), and feed ``budget`` the moving
+    frames it timed; return what it returned (see :meth:`rtdefocus.Compensator.warm_up`)."""
+    try:
+        params = inspect.signature(comp.warm_up).parameters
+    except (TypeError, ValueError):
+        params = {}
+    several = "frames" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+    info = comp.warm_up(iterations=budget.minimum,
+                        **({"frames": WARM_UP_FRAMES} if several else {}))
+    if info:
+        its = int(info.get("iterations", 0) or 0)
+        for sec in info.get("moving") or [info.get("seconds") or {}]:
+            if "total" in sec and "solve" in sec:
+                budget.update(sec["total"], sec["solve"], its, repeat=False)
+    return info
 
 
 class CatchUp:

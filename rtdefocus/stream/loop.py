@@ -66,7 +66,7 @@ from .. import __version__
 from ..errors import InputError
 from ..imageio import fit_image
 from .cache import SlideCache, calibration_fingerprint
-from .catch_up import WARM_UP_FRAMES, CatchUp, learn_warm_up
+from .catch_up import CatchUp, warm_up
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .decoder import END, Decoder, Failure
 from .sinks import Sink
@@ -374,15 +374,13 @@ class Player:
         first frame (:meth:`Compensator.warm_up`), so that its first-use costs do not make the
         first moving frame late, and start the budget from its moving frames' costs and their
         spread (not from a still picture's, a fraction of it and steadier)."""
-        warm_up = getattr(self.comp, "warm_up", None)
-        if self.budget is None or not self.live or warm_up is None:
+        if self.budget is None or not self.live or not hasattr(self.comp, "warm_up"):
             return
         t0 = time.perf_counter()
-        info = warm_up(iterations=self.budget.minimum, frames=WARM_UP_FRAMES)
+        info = warm_up(self.comp, self.budget)
         if not info:
             return
         sec = info.get("seconds") or {}
-        learn_warm_up(self.budget, info)
         self.stats.restart()                 # the frame rate counts from the first frame
         log.info("warmed up in %.2f s (a moving frame: %.0f ms)", time.perf_counter() - t0,
                  1e3 * sec.get("total", float("nan")))
