@@ -189,6 +189,7 @@ def test_a_room_knocked_and_back_is_not_explained_as_more_planes():
         calibrate_geometry(None, Capturer(blind))
 
 
+@pytest.mark.slow
 def test_cli_calibrate_takes_planes(tmp_path, monkeypatch, capsys):
     from rtdefocus import cli
 
