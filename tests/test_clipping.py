@@ -45,6 +45,7 @@ def pair(small_cubicle, tmp_path_factory):
             "clipping": clipping_run(folder)}, folder
 
 
+@pytest.mark.slow
 def test_clipping_dots_give_the_unclipped_kernels(pair):
     """The clipping run's kernels as close as the unclipped cubicle's (the done-when, 1.2x)
     and within 1.5x of their MEASURED error."""

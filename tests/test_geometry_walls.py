@@ -125,6 +125,7 @@ def test_sagging_sheets_refused_as_exact_planes_fit_as_nearly_flat_ones():
     assert map_difference(forced, calib) <= ACCURACY * MEASURED_SAGGING_FORCED
 
 
+@pytest.mark.slow
 def test_flat_walls_get_no_residual():
     """On exact planes a residual field would fit the crossings' noise: none is kept, and the
     calibration is the exact-plane one."""

@@ -57,6 +57,7 @@ def dot_figures(procam, calib, folder) -> dict:
             "out": out, "dots": sum(len(p) for p, _ in captures)}
 
 
+@pytest.mark.slow
 def test_dots_from_another_rig_match_the_stage(small_cubicle, tmp_path):
     procam, calib, _ = small_cubicle
     f = dot_figures(procam, calib, tmp_path)
