@@ -79,11 +79,6 @@ def small_cubicle(tmp_path_factory):
     """A 200x150 cubicle calibrated end to end with its camera's exposure control, its
     captures kept: (procam, calibration, capture folder). Shared by the capture-set and the
     clipping tests (a calibration costs ~4 s)."""
-    from helpers import Blind
+    from helpers import small_cubicle_run
 
-    import rtdefocus as rd
-
-    folder = tmp_path_factory.mktemp("small_cubicle") / "captures"
-    procam = rd.sim.VirtualProCam("cubicle", projector_size=(200, 150), camera_size=(320, 240))
-    calib = rd.calibrate(Blind(procam, exposure=True), save_captures=folder)
-    return procam, calib, folder
+    return small_cubicle_run(tmp_path_factory.mktemp("small_cubicle") / "captures")

@@ -87,3 +87,14 @@ class CountingProCam:
     def capture(self, pattern):
         self.n += 1
         return np.zeros((self.camera_size[1], self.camera_size[0], 3), np.uint8)
+
+
+def small_cubicle_run(folder):
+    """A 200x150 cubicle (camera 320x240) calibrated end to end with its camera's exposure
+    control, its captures kept in ``folder``: (procam, calibration, folder). The session
+    fixture ``small_cubicle`` and tools/measure_gains.py make it the same way."""
+    import rtdefocus as rd
+
+    procam = rd.sim.VirtualProCam("cubicle", projector_size=(200, 150), camera_size=(320, 240))
+    calib = rd.calibrate(Blind(procam, exposure=True), save_captures=folder)
+    return procam, calib, folder

@@ -104,8 +104,14 @@ def test_recorder_keeps_out_of_other_folders(tmp_path):
     assert (tmp_path / "notes.txt").read_text() == "mine"
 
 
-@pytest.fixture(scope="module")
-def true_map():
+#: Measured by ``.venv/bin/python tools/measure_gains.py --sections correspondences``
+#: (2026-12-03): the calibrated planes' round trip off the true homographies, RMS and worst
+#: (projector px). Bounds 1.5x each.
+MEASURED = {"rms": 0.0680, "max": 0.2515}
+
+
+def true_cubicle_map():
+    """The simulator's own camera -> projector map of the cubicle: (truth, map, valid)."""
     procam = rd.sim.VirtualProCam("cubicle", **SIZES)
     truth = procam.truth
     xy = truth.extra["proj_from_cam"]
@@ -113,14 +119,16 @@ def true_map():
     return truth, xy, valid
 
 
-def test_correspondences_recover_the_homographies(true_map):
-    """The simulator's own camera -> projector map: every projector pixel of each true plane
-    (every 4th), through the true homography into the camera and back through the calibrated
-    plane's inverse. Measured: RMS 0.068 projector px (plane 0: 0.005, plane 1: 0.096), the
-    worst 0.25; bounds 1.5x that."""
-    truth, xy, valid = true_map
+@pytest.fixture(scope="module")
+def true_map():
+    return true_cubicle_map()
+
+
+def correspondence_errors(truth, xy, valid):
+    """Every 4th projector pixel of each true plane, through the true homography into the
+    camera and back through the calibrated plane's inverse: the distances (projector px), and
+    the calibration."""
     calib = rd.calibrate_from_correspondences(xy, valid, SIZES["projector_size"])
-    assert calib.n_planes == 2 and calib.meta["geometry"]["source"] == "correspondences"
     gx, gy = np.meshgrid(np.arange(0, 200, 4.0), np.arange(0, 150, 4.0))
     pts = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
     true_plane = truth.plane_map[gy.astype(int).ravel(), gx.astype(int).ravel()]
@@ -131,8 +139,16 @@ def test_correspondences_recover_the_homographies(true_map):
         back = np.einsum("nij,jn->in", calib.H_proj_from_cam[
             calib.plane_of(pts[0, sel], pts[1, sel]).astype(int)], cam / cam[2])
         errors.append(np.linalg.norm(back[:2] / back[2] - pts[:2, sel], axis=0))
-    err = np.concatenate(errors)
-    assert np.sqrt(np.mean(err ** 2)) < 0.10 and err.max() < 0.38
+    return np.concatenate(errors), calib
+
+
+def test_correspondences_recover_the_homographies(true_map):
+    """The simulator's own camera -> projector map gives the true planes' homographies, within
+    1.5x of the MEASURED round-trip error."""
+    err, calib = correspondence_errors(*true_map)
+    assert calib.n_planes == 2 and calib.meta["geometry"]["source"] == "correspondences"
+    rms = np.sqrt(np.mean(err ** 2))
+    assert rms <= 1.5 * MEASURED["rms"] and err.max() <= 1.5 * MEASURED["max"], (rms, err.max())
 
 
 def test_correspondences_refuse_a_bad_map(true_map):

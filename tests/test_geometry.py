@@ -409,6 +409,7 @@ def test_setup_moved_half_way_is_reported():
         calibrate_geometry(None, Capturer(blind))
 
 
+@pytest.mark.slow
 def test_setup_knocked_and_back_is_reported():
     # captures 4..7 (two phases of each line family) taken 6 px off: the white frames agree,
     # the correspondences do not

@@ -28,6 +28,22 @@ PROJ = (160, 120)
 CAM = (200, 150)
 H_CAM_FROM_PROJ = np.array([[1.1, 0.08, 8.0], [-0.04, 1.05, 6.0], [2e-4, 1e-4, 1.0]])
 
+#: Measured by ``.venv/bin/python tools/measure_gains.py --sections dense`` (2026-12-03).
+#: Decoder (PROJ / CAM, away from the lit edge): coordinate error median and 99th percentile
+#: (projector px), the valid share of the lit inner area; a flipped Gray-code bit: the valid
+#: share on its patch and the largest error left. The gap (SMALL, dense): the far wall's share
+#: masked, the walls' share masked, the walls' model RMS (camera px). webcam_sagging with the
+#: lens given and guessed, sagging dense and from crossings: model RMS (camera px).
+#: Error bounds 1.5x (none of the flipped patch or of the walls masked: none allowed); shares
+#: >= 85 % (the valid share held to 0.97).
+MEASURED = {
+    "decode": {"median": 0.0130, "p99": 0.0338, "valid": 1.0},
+    "misread": {"patch_valid": 0.0, "max": 0.0513},
+    "gap": {"far_masked": 0.990, "walls_masked": 0.0, "rms": 0.00286},
+    "sagging": {"dense": 0.0185, "lines": 0.0359},
+    "lens": {"given": 0.0434, "guessed": 0.447},
+}
+
 
 def _camera(pattern: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     lin = (pattern.astype(np.float32) / 255.0) ** 2.2           # the projector's response
@@ -39,6 +55,11 @@ def _camera(pattern: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def decoded() -> DenseMap:
+    return decode_map()
+
+
+def decode_map() -> DenseMap:
+    """The dense patterns through the homography camera (seed 3), decoded."""
     rng = np.random.default_rng(3)
     pats = DensePatterns(PROJ, period=16, steps=8)
     dec = DenseDecoder(pats)
@@ -57,26 +78,35 @@ def _truth(cam_xy: np.ndarray) -> np.ndarray:
     return p[:, :2] / p[:, 2:]
 
 
-def test_every_lit_pixel_gets_its_projector_coordinates(decoded):
+def decode_figures(decoded: DenseMap) -> dict:
+    """The decoded map against the true homography, away from the lit edge (where the blur
+    mixes in the dark): error median and 99th percentile, the valid share of the lit inner
+    area, and how many pixels off the lit area are valid."""
     cam, proj = decoded.samples(1)
     err = np.linalg.norm(proj - _truth(cam), axis=1)
-    # away from the lit edge, where the blur mixes in the dark
     wp, hp = PROJ
     t = _truth(cam)
     inner = (t[:, 0] > 4) & (t[:, 0] < wp - 5) & (t[:, 1] > 4) & (t[:, 1] < hp - 5)
-    assert np.median(err[inner]) < 0.05 and np.percentile(err[inner], 99) < 0.3, \
-        (np.median(err[inner]), np.percentile(err[inner], 99))
-    # valid on nearly all of the lit inner area, never off the lit area
     ys, xs = np.mgrid[0:CAM[1], 0:CAM[0]]
     tt = _truth(np.c_[xs.ravel(), ys.ravel()]).reshape(CAM[1], CAM[0], 2)
     inside = (tt[..., 0] > 4) & (tt[..., 0] < wp - 5) & (tt[..., 1] > 4) & (tt[..., 1] < hp - 5)
-    assert decoded.valid[inside].mean() > 0.97
     # (the blur carries light about 3 px past the frame's edge)
     outside = (tt[..., 0] < -5) | (tt[..., 0] > wp + 4) | (tt[..., 1] < -5) | (tt[..., 1] > hp + 4)
-    assert not decoded.valid[outside].any()
+    return {"median": float(np.median(err[inner])), "p99": float(np.percentile(err[inner], 99)),
+            "valid": float(decoded.valid[inside].mean()),
+            "valid_outside": int(decoded.valid[outside].sum())}
 
 
-def test_a_misread_gray_code_bit_is_invalid_not_a_wrong_coordinate():
+def test_every_lit_pixel_gets_its_projector_coordinates(decoded):
+    f, m = decode_figures(decoded), MEASURED["decode"]
+    assert f["median"] <= 1.5 * m["median"] and f["p99"] <= 1.5 * m["p99"], f
+    # valid on nearly all of the lit inner area, never off the lit area
+    assert f["valid"] > 0.97 and f["valid_outside"] == 0, f
+
+
+def misread_figures() -> dict:
+    """The most significant Gray-code bit flipped on a patch: the valid share on the patch and
+    the largest coordinate error left away from the lit edge."""
     rng = np.random.default_rng(4)
     pats = DensePatterns(PROJ, period=16, steps=8)
     dec = DenseDecoder(pats)
@@ -93,9 +123,14 @@ def test_a_misread_gray_code_bit_is_invalid_not_a_wrong_coordinate():
     err = np.linalg.norm(proj - _truth(cam), axis=1)
     t = _truth(cam)
     inner = (t[:, 0] > 4) & (t[:, 0] < wp - 5) & (t[:, 1] > 4) & (t[:, 1] < hp - 5)
-    assert out.valid[62:78, 62:78].mean() < 0.05
+    return {"patch_valid": float(out.valid[62:78, 62:78].mean()), "max": float(err[inner].max())}
+
+
+def test_a_misread_gray_code_bit_is_invalid_not_a_wrong_coordinate():
+    f, m = misread_figures(), MEASURED["misread"]
+    assert f["patch_valid"] <= 1.5 * m["patch_valid"], f
     # the patch's rim, where the flipped bit and the true one mix, is invalid too or right
-    assert err[inner].max() < 1.0, err[inner].max()
+    assert f["max"] <= 1.5 * m["max"], f
 
 
 def test_phase_and_stripe_known_answer():
@@ -146,6 +181,20 @@ def geometry(preset: str, dense: bool):
     return _RUNS[preset, dense]
 
 
+def gap_figures(pc, calib) -> dict:
+    """The dense fit of the gap: the far wall's share masked, the walls' share masked, the
+    walls' model RMS (the far wall did not bend the right one), the share of the display
+    rectangle on a wall (content goes only where a wall is lit)."""
+    mask = calib.geometry_detail.unfit_mask
+    cam_plane = pc.truth.extra["camera_plane_map"]
+    seen = pc.truth.extra["camera_in_frame"]
+    far, walls = (cam_plane == -1) & seen, (cam_plane >= 0) & seen
+    x, y, w, h = calib.display_rect((4, 3))
+    return {"far": int(far.sum()), "far_masked": float(mask[far].mean()),
+            "walls_masked": float(mask[walls].mean()), "rms": homography_rms(calib, pc.truth),
+            "walls_shown": float(walls[y:y + h, x:x + w].mean())}
+
+
 @pytest.mark.slow
 def test_the_far_wall_through_a_gap_is_masked_drawn_and_left_out():
     pc, calib = geometry("gap", dense=True)
@@ -153,19 +202,13 @@ def test_the_far_wall_through_a_gap_is_masked_drawn_and_left_out():
     g = calib.meta["geometry"]
     assert g["options"]["dense"] and g["captures"] > 20
     mask = calib.geometry_detail.unfit_mask
+    f, m = gap_figures(pc, calib), MEASURED["gap"]
+    assert f["far"] > 1000 and g["unfit"]["pixels"] == int(mask.sum())
+    assert f["far_masked"] >= 0.85 * m["far_masked"], f
+    assert f["walls_masked"] <= 1.5 * m["walls_masked"] and f["rms"] <= 1.5 * m["rms"], f
+    assert f["walls_shown"] > 0.99, f
     cam_plane = pc.truth.extra["camera_plane_map"]
-    seen = pc.truth.extra["camera_in_frame"]
-    far, walls = (cam_plane == -1) & seen, (cam_plane >= 0) & seen
-    assert far.sum() > 1000
-    assert mask[far].mean() > 0.8, mask[far].mean()
-    assert mask[walls].mean() < 0.02, mask[walls].mean()
-    assert g["unfit"]["pixels"] == int(mask.sum())
-    # the walls themselves still fit: the far wall did not bend the right one
-    assert homography_rms(calib, pc.truth) < 0.15
-    # content goes only where a wall is lit: the display rectangle leaves out the projector
-    # columns whose light goes through the gap
-    x, y, w, h = calib.display_rect((4, 3))
-    assert walls[y:y + h, x:x + w].mean() > 0.99, walls[y:y + h, x:x + w].mean()
+    walls = (cam_plane >= 0) & pc.truth.extra["camera_in_frame"]
     # the picture marks that region, and only it (its outline, label and the caption aside)
     detail = calib.geometry_detail
     img = geometry_diagnostics(calib, detail)
@@ -182,7 +225,9 @@ def test_dense_fit_of_a_sagging_wall_is_at_least_as_close_as_the_crossings():
     pc, dense = geometry("sagging", dense=True)
     _, lines = geometry("sagging", dense=False)
     assert dense.n_planes == lines.n_planes == 2
-    assert homography_rms(dense, pc.truth) <= 1.1 * homography_rms(lines, pc.truth)
+    f = {"dense": homography_rms(dense, pc.truth), "lines": homography_rms(lines, pc.truth)}
+    assert f["dense"] <= 1.1 * f["lines"], f
+    assert all(f[k] <= 1.5 * v for k, v in MEASURED["sagging"].items()), f
 
 
 def test_a_bad_lens_option_is_a_clear_error():
@@ -198,9 +243,18 @@ def test_a_bad_lens_option_is_a_clear_error():
 
 @pytest.mark.slow
 def test_a_given_lens_tells_a_pillowed_sheet_from_barrel_distortion():
-    pc = sim.VirtualProCam("webcam_sagging", **SMALL)
-    given = calibrate(Blind(pc), stages=["geometry"], lens=tuple(pc.truth.distortion))
-    guessed = calibrate(Blind(pc), stages=["geometry"])
+    pc, given, guessed = given_lens_runs()
     assert given.meta["geometry"]["distortion"]["given"]
     np.testing.assert_allclose(given.camera_distortion, pc.truth.distortion)
-    assert homography_rms(given, pc.truth) < 0.5 * homography_rms(guessed, pc.truth)
+    f = {"given": homography_rms(given, pc.truth), "guessed": homography_rms(guessed, pc.truth)}
+    m = MEASURED["lens"]
+    assert f["given"] <= 1.5 * m["given"], f
+    # the lens, not the sheet's bow, is what the given lens takes out: >= 85 % of the MEASURED lead
+    assert f["guessed"] / f["given"] >= 0.85 * m["guessed"] / m["given"], f
+
+
+def given_lens_runs():
+    """webcam_sagging's geometry with the true lens given, and with the lens estimated."""
+    pc = sim.VirtualProCam("webcam_sagging", **SMALL)
+    return (pc, calibrate(Blind(pc), stages=["geometry"], lens=tuple(pc.truth.distortion)),
+            calibrate(Blind(pc), stages=["geometry"]))

@@ -180,6 +180,7 @@ def _shift(frame, dx, dy):
     return cv2.warpAffine(frame, np.float32([[1, 0, dx], [0, 1, dy]]), frame.shape[1::-1])
 
 
+@pytest.mark.slow
 def test_a_room_knocked_and_back_is_not_explained_as_more_planes():
     # two phases of each line family 6 px off: four interleaved, equally good "homographies"
     # but no bend between them — the set-up moved, it did not grow planes
@@ -189,6 +190,7 @@ def test_a_room_knocked_and_back_is_not_explained_as_more_planes():
         calibrate_geometry(None, Capturer(blind))
 
 
+@pytest.mark.slow
 def test_cli_calibrate_takes_planes(tmp_path, monkeypatch, capsys):
     from rtdefocus import cli
 

@@ -69,6 +69,7 @@ MEASURED_SAGGING_BOW, MEASURED_SAGGING_FORCED = 8.32, 0.0035
 MEASURED_CUBICLE = {"flat_rms": 0.0276, "checkerboard_step": 0.104748 - 0.104506}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["bowed", "sagging"])
 def test_nearly_flat_walls_calibrate_to_the_exact_map(preset):
     calib, m = geometry(preset), MEASURED[preset]
@@ -82,6 +83,7 @@ def test_nearly_flat_walls_calibrate_to_the_exact_map(preset):
     assert rms <= CHECKERBOARD and bend <= CHECKERBOARD, (rms, bend)
 
 
+@pytest.mark.slow
 def test_the_geometry_picture_says_how_far_the_walls_bow():
     from rtdefocus.calib.geometry.diagnostics import caption, geometry_diagnostics
 
@@ -106,6 +108,7 @@ def test_the_residual_is_what_makes_a_bowed_wall_fit():
     assert step >= EFFECT * (f["checkerboard"] - m["checkerboard"]), step
 
 
+@pytest.mark.slow
 def test_sagging_sheets_refused_as_exact_planes_fit_as_nearly_flat_ones():
     """Pillowed walls (2 and 4 cm) make the flat-plane fit refuse the room; the nearly-flat
     fit (looser inliers, residual fields) takes it, and says so in the meta; planes=2 forced
@@ -122,6 +125,7 @@ def test_sagging_sheets_refused_as_exact_planes_fit_as_nearly_flat_ones():
     assert map_difference(forced, calib) <= ACCURACY * MEASURED_SAGGING_FORCED
 
 
+@pytest.mark.slow
 def test_flat_walls_get_no_residual():
     """On exact planes a residual field would fit the crossings' noise: none is kept, and the
     calibration is the exact-plane one."""

@@ -154,6 +154,7 @@ def test_a_cut_restarts_from_the_target(calib, pictures):
     assert np.array_equal(out, cold), "the frame after a cut must be exactly the cold start's"
 
 
+@pytest.mark.slow
 def test_a_still_picture_converges_like_one_long_solve(calib, pictures):
     """A paused video or a slide: k frames of n iterations continue one solve (FISTA keeps its
     momentum), ending where one k·n-iteration solve ends."""

@@ -32,24 +32,39 @@ def _frame(procam, pts: np.ndarray, n: int) -> np.ndarray:
     return np.mean([procam.capture(pattern) for _ in range(n)], axis=0, dtype=np.float32)
 
 
-def test_dots_from_another_rig_match_the_stage(small_cubicle, tmp_path):
-    procam, calib, _ = small_cubicle
+#: Median kernel relative L2 inside the walls (80 projector pixels off the folds), measured by
+#: ``.venv/bin/python tools/measure_gains.py --sections dots`` (2026-12-03): the stage's own
+#: dots 0.0614, another rig's 80 jittered dots through calibrate_psf_from_dots 0.0498 (0.0487
+#: in another run: the shared fixture's noise depends on what captured before). Bounds 1.5x
+#: each.
+MEASURED = {"stage": 0.0614, "given": 0.0498}
+
+
+def dot_figures(procam, calib, folder) -> dict:
+    """The stage's median kernel error and that of another rig's dots (a jittered grid in two
+    frames, each averaged as often as the stage averaged its dot patterns), with the run."""
     truth = procam.truth
     rng = np.random.default_rng(3)
     wp, hp = calib.projector_size
     xy = np.column_stack([rng.integers(0, wp, 400), rng.integers(0, hp, 400)])
     inside = xy[fold_distance(truth, xy.astype(float)) > NEAR_FOLD][:80]
-    stage_err = float(np.median(kernel_errors(calib, truth, inside)))
-
-    # Each frame averaged as often as the stage averaged its dot patterns: the same noise.
     n = calib.meta["psf"]["averages"]
     captures = [(pts, _frame(procam, pts, n)) for pts in _jittered_grid(wp, hp, 10, 8, rng)]
-    mine = rd.Calibration.load(calib.save(tmp_path / "calib.npz"))     # the fixture is shared
+    mine = rd.Calibration.load(calib.save(folder / "calib.npz"))     # the fixture is shared
     out = rd.calibrate_psf_from_dots(mine, captures)
-    err = float(np.median(kernel_errors(out, truth, inside)))
-    assert out.meta["psf"]["layout"] == "given"
-    assert len(out.psfs) == sum(len(p) for p, _ in captures)
-    assert err <= 1.5 * stage_err, (err, stage_err)
+    return {"stage": float(np.median(kernel_errors(calib, truth, inside))),
+            "given": float(np.median(kernel_errors(out, truth, inside))),
+            "out": out, "dots": sum(len(p) for p, _ in captures)}
+
+
+@pytest.mark.slow
+def test_dots_from_another_rig_match_the_stage(small_cubicle, tmp_path):
+    procam, calib, _ = small_cubicle
+    f = dot_figures(procam, calib, tmp_path)
+    assert f["out"].meta["psf"]["layout"] == "given"
+    assert len(f["out"].psfs) == f["dots"]
+    for key, measured in MEASURED.items():
+        assert f[key] <= 1.5 * measured, (key, f[key], measured)
 
 
 def test_dots_input_errors(small_cubicle):

@@ -96,7 +96,9 @@ def test_frame_fully_on_walls_and_in_view(preset):
 
 
 # --------------------------------------------------------------------------- blur radius
-@pytest.mark.parametrize("preset", PLANAR)
+# The cubicle in the fast tier; every other preset in the whole suite.
+@pytest.mark.parametrize("preset", [pytest.param(p, marks=() if p == "cubicle" else pytest.mark.slow)
+                                    for p in PLANAR])
 def test_radius_affine_per_wall_and_thin_lens(preset):
     pc = procam(preset)
     t = pc.truth
@@ -469,6 +471,7 @@ def test_texture_changes_albedo_faintly():
 
 
 # --------------------------------------------------------------------------- CLI
+@pytest.mark.slow
 def test_cli_simulate_writes_png(tmp_path):
     out = tmp_path / "cubicle.png"
     assert cli.main(["-q", "simulate", "--scene", "cubicle", "--pattern", "checker", "-o", str(out)]) == 0

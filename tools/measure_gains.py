@@ -22,6 +22,11 @@ Sections (``--sections``, comma-separated):
 ``walls``       tests/test_geometry_walls.py: the nearly-flat walls' model, fold, checkerboard.
 ``watch``       tests/test_watch_residual.py: the residual report's errors per change.
 ``render``      tests/test_render.py: the chunked render off the serial one, the codec's loss.
+``dots``        tests/test_psf_external.py: another rig's dots against the PSF stage's own.
+``clipping``    tests/test_clipping.py: kernels and albedo of cameras that clip.
+``correspondences``  tests/test_captureset.py: the geometry from a dense correspondence map.
+``dense``       tests/test_geometry_dense.py: the dense decoder, the gap's mask, a given lens.
+``lenscli``     tests/test_calibrate_walls_cli.py: ``--lens-from`` and the far-wall warning.
 
 Example::
 
@@ -358,12 +363,85 @@ def section_render() -> None:
             + " ".join(f"{d['coded'] - d['geometry']:.3f}" for d in db) + " dB", flush=True)
 
 
+def _print(section: str, name: str, figures: dict) -> None:
+    print(f"{section} {name:14s} " + "  ".join(
+        f"{k} {v:.4g}" for k, v in figures.items() if isinstance(v, (float, int))), flush=True)
+
+
+def section_dots() -> None:
+    """tests/test_psf_external.py: another rig's dots through calibrate_psf_from_dots against
+    the PSF stage's own, on the small cubicle of the session fixture."""
+    import test_psf_external as te
+    from helpers import small_cubicle_run
+
+    with tempfile.TemporaryDirectory() as root:
+        procam, calib, _ = small_cubicle_run(Path(root) / "captures")
+        _print("dots", "cubicle", te.dot_figures(procam, calib, Path(root)))
+
+
+def section_clipping() -> None:
+    """tests/test_clipping.py: kernels of the clipping run and the plain cubicle, the albedo
+    filled where white clips, the PSF stage on a camera whose red channel clips."""
+    import test_clipping as tc
+    from helpers import small_cubicle_run
+    from setup_figures import kernel_medians
+
+    with tempfile.TemporaryDirectory() as root:
+        procam, calib, _ = tc.clipping_run(Path(root) / "clip")
+        plain, pcal, _ = small_cubicle_run(Path(root) / "plain")
+        _print("clipping", "kernels", {"clipped": kernel_medians(calib, procam.truth)[0],
+                                       "unclipped": kernel_medians(pcal, plain.truth)[0],
+                                       "lowered": calib.meta["radiometry"]["exposure_lowered"]})
+    err, _ = tc.albedo_fill_errors()
+    _print("clipping", "albedo", {"albedo_median": float(np.median(err)),
+                                  "albedo_max": float(err.max()), "pixels": len(err)})
+    red, ref = tc.red_hot_errors()
+    _print("clipping", "red hot", {"red_hot": red, "red_hot_plain": ref})
+
+
+def section_correspondences() -> None:
+    """tests/test_captureset.py: calibrate_from_correspondences on the simulator's own map."""
+    import test_captureset as tc
+
+    err, _ = tc.correspondence_errors(*tc.true_cubicle_map())
+    _print("correspondences", "cubicle", {"rms": float(np.sqrt(np.mean(err ** 2))),
+                                          "max": float(err.max())})
+
+
+def section_dense() -> None:
+    """tests/test_geometry_dense.py: the dense decoder, a misread bit, the gap's far wall,
+    sagging dense against crossings, a given lens against a guessed one."""
+    import test_geometry_dense as td
+    from setup_figures import homography_rms
+
+    _print("dense", "decode", td.decode_figures(td.decode_map()))
+    _print("dense", "misread", td.misread_figures())
+    _print("dense", "gap", td.gap_figures(*td.geometry("gap", dense=True)))
+    pc, dense = td.geometry("sagging", dense=True)
+    _print("dense", "sagging", {"dense": homography_rms(dense, pc.truth),
+                                "lines": homography_rms(td.geometry("sagging", False)[1], pc.truth)})
+    pc, given, guessed = td.given_lens_runs()
+    _print("dense", "lens", {"given": homography_rms(given, pc.truth),
+                             "guessed": homography_rms(guessed, pc.truth)})
+
+
+def section_lenscli() -> None:
+    """tests/test_calibrate_walls_cli.py: webcam_sagging's checkerboard with the lens of a
+    flat-wall calibration and with its own guess; the far-wall warning's box on gap."""
+    import test_calibrate_walls_cli as tw
+
+    _print("lenscli", "lens_from", tw.measure_lens_from())
+    _print("lenscli", "far wall", tw.measure_far_wall())
+
+
 SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": section_demo,
             "webcam": section_webcam, "reference": section_reference, "field": section_field,
             "radiometry": section_radiometry, "geometry": section_geometry,
             "video": section_video, "psf": section_psf, "rooms": section_rooms,
             "surface": section_surface, "walls": section_walls, "watch": section_watch,
-            "render": section_render}
+            "render": section_render, "dots": section_dots, "clipping": section_clipping,
+            "correspondences": section_correspondences, "dense": section_dense,
+            "lenscli": section_lenscli}
 
 
 def main(argv=None) -> int:

