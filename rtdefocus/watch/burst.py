@@ -41,14 +41,20 @@ __all__ = ["BURSTS", "BurstOptions", "BurstRunner", "Burst", "Replay", "dot_burs
            "geometry_burst", "fit_kernel_scale", "homographies_mend"]
 
 
+#: When a focus change gets a dot burst (:attr:`BurstOptions.focus`).
+FOCUS_MODES = ("auto", "always", "never")
+
+
 @dataclass(frozen=True)
 class BurstOptions:
     """When the watcher shows pattern bursts, and how long they are.
 
     Attributes
     ----------
-    focus : a dot burst on every focus change (the content's band-pass ratio detects a blur
-        change well but measures its size only roughly: it moves with the content's spectrum).
+    focus : when a focus change gets a dot burst: ``"auto"`` where the content cannot size it
+        (no band-pass level to fit to yet, or no radius scale within [0.5, 2] explains the
+        ratio), ``"always"`` on every focus change the content confirms (the band-pass ratio
+        moves a little with the content's spectrum; the dots do not), ``"never"``.
     geometry : a geometry burst for a move the content alignment does not mend
         (``geometry_after`` content mends that did not clear it, a mend that could not be
         estimated, or the camera no longer sees the show as calibrated), or while the model
@@ -61,7 +67,7 @@ class BurstOptions:
     plain_s : seconds of looks too plain to align while untrusted before a geometry burst.
     """
 
-    focus: bool = True
+    focus: str = "auto"
     geometry: bool = True
     dot_frames: int = 8
     dot_spacing: int = 40
@@ -77,6 +83,9 @@ class BurstOptions:
         return cls(settle=settle, **options)
 
     def __post_init__(self):
+        if self.focus not in FOCUS_MODES:
+            raise InputError(f"burst focus must be one of {', '.join(FOCUS_MODES)}; got "
+                             f"{self.focus!r}")
         if self.dot_frames < 1 or self.dot_spacing < 8 or self.settle < 0 or \
                 self.geometry_after < 1 or not (math.isfinite(self.plain_s) and self.plain_s > 0):
             raise InputError(f"burst options need dot_frames >= 1, dot_spacing >= 8, settle >= 0, "
@@ -359,7 +368,8 @@ class BurstRunner:
         """Plan a burst of ``kind`` ("focus" | "geometry") when the options allow one and none
         is running; logs a warning saying so. Returns it, or None."""
         o = self.options
-        if not o or not getattr(o, kind) or self.burst is not None:
+        allowed = o and (o.geometry if kind == "geometry" else o.focus != "never")
+        if not allowed or self.burst is not None:
             return None
         try:
             self.burst = (dot_burst if kind == "focus" else geometry_burst)(calib, o)

@@ -469,8 +469,8 @@ class Watcher:
             log.warning("could not mend the %s change: %s", kind, exc)
             self._active[kind] = mends + 1
             # A mend the content cannot even estimate (a light fit with a negative gain: the
-            # picture is not where the model puts it): the geometry patterns say what moved.
-            self._start_burst("geometry", t)
+            # picture is not where the model puts it): the patterns say what changed.
+            self._start_burst("focus" if kind == "focus" else "geometry", t)
             return
         if new is None:
             self._event(t, kind, "retract", detail)
@@ -479,7 +479,8 @@ class Watcher:
             del self._active[kind]
             return
         # The band ratio tells a blur change from none; its size, a dot burst measures.
-        if o and kind == "focus" and mends == 0 and self._start_burst(kind, t, detail):
+        if o and o.focus == "always" and kind == "focus" and mends == 0 \
+                and self._start_burst(kind, t, detail):
             return
         self._hand_over(kind, new, detail, t)
 
@@ -556,6 +557,8 @@ class Watcher:
         base = float(np.median(self._band_base))
         scale = fit_band_scale(self.calib, shown, capture, base, self.report)
         detail = {"kernel_scale": round(scale, 4)}
+        if not 0.5 < scale < 2.0:
+            raise InputError(f"no radius scale within [0.5, 2] explains the band ratio ({scale:.3g})")
         if abs(scale - 1.0) < 0.04:
             # The kernels explain this content: its band level is one of a right model (the
             # ratio moves a few per cent with the content's spectrum), measured again from here.
