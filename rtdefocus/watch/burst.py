@@ -144,6 +144,7 @@ class Burst:
         self.plan = [(p, j >= settle) for p, n in patterns for j in range(settle + n)]
         self.captured: list[tuple[np.ndarray, np.ndarray]] = []
         self.shown = 0
+        self.solving = False       # every frame captured; the stage runs on them
 
     @property
     def frames(self) -> int:
@@ -361,7 +362,8 @@ class BurstRunner:
     def __init__(self, options: BurstOptions | None):
         self.options = options
         self.burst: Burst | None = None
-        self._asked = False          # the Player took the burst's frame (pattern()) to show it
+        #: The Player took the burst's frame (:meth:`pattern`) to show it next.
+        self.asked = False
         self._plain_since: float | None = None
 
     def start(self, kind: str, calib: Calibration, t: float) -> Burst | None:
@@ -383,17 +385,17 @@ class BurstRunner:
     def pattern(self) -> np.ndarray | None:
         """The burst's next frame for the Player to show (it then offers it), or None."""
         frame = self.burst.pattern() if self.burst is not None else None
-        self._asked = frame is not None
+        self.asked = frame is not None
         return frame
 
     def offered(self, look) -> Burst | None:
         """A frame was shown during the burst: when it was the burst's, count and capture it
         (through ``look``). Returns the burst once every frame is captured (once)."""
         b = self.burst
-        if self._asked and not b.complete:
-            self._asked = False
+        if self.asked and not b.complete:
+            self.asked = False
             b.shows(look)
-        if b.complete and not getattr(b, "solving", False):
+        if b.complete and not b.solving:
             b.solving = True
             return b
         return None

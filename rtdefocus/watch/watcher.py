@@ -29,10 +29,11 @@ content, with no pattern on the screen:
 What the content cannot mend, a short burst of calibration patterns does
 (:mod:`~rtdefocus.watch.burst`, :class:`BurstOptions`): :meth:`Watcher.pattern` hands the Player
 the frames to show instead of the content, the watcher captures them through its look and
-re-measures: a dot burst for a focus change (the band ratio measures a blur change's size only
-roughly), a geometry burst for a move the content mends did not clear, a lost view, or content
-too plain to align for too long while the model is untrusted. Each burst is logged as a
-warning and its pattern frames are counted in its events.
+re-measures: a dot burst for a focus change the band ratio cannot size (or for every one,
+``BurstOptions(focus="always")``), a geometry burst for a move the content mends did not clear,
+a mend the content cannot estimate, a lost view, or content too plain to align for too long
+while the model is untrusted. Each burst is logged as a warning, its pattern frames are
+counted in its events, and its mend is handed over whole, as the others.
 
 The mend becomes a new :class:`~rtdefocus.calib.file.Calibration` (the one in use is never
 modified), handed to the Player by :meth:`Watcher.poll` as a :class:`WatchUpdate` that it
@@ -179,7 +180,8 @@ class Watcher:
         estimated, was below the low threshold (nothing applied). An evaluation that knows
         when the set-up changed counts its own: detections with no change since the last one.
     looks : looks made; last_report : the last look's report.
-    untrusted_frames : frames offered while the model was not trusted (shown geometry only).
+    untrusted_frames : frames offered while the model was not trusted (shown geometry only;
+        a burst's pattern frames are counted in its events).
     """
 
     def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
@@ -239,7 +241,7 @@ class Watcher:
         """The Player showed ``shown`` ((Hp, Wp, 3) uint8, the projector frame) for the input
         ``source``: look now if a look is due. Returns whether a look was started."""
         self._raise_error()
-        if not self.trusted:
+        if not self.trusted and not self._bursts.asked:     # (a pattern frame is no picture)
             self.untrusted_frames += 1
         t = float(self.clock())
         if self._bursts.burst is not None:
