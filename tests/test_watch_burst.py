@@ -161,6 +161,8 @@ def test_player_shows_the_burst_patterns_instead_of_the_content():
     player.run()
     (mend,) = [e for e in w.events if e.action == "mend"]
     assert sum(written) == mend.pattern_frames == BurstOptions().dot_frames
+    assert player.stats.pattern_frames == sum(written)
+    assert any("pattern frames" in line for line in player.stats.overlay_lines("full", False))
     assert player.comp.calib is w.calib and w.trusted
 
 

@@ -508,6 +508,7 @@ class Player:
             t0 = time.perf_counter()
             pattern = self.watcher.pattern() if self.watcher is not None else None
             if pattern is not None:     # a burst: the camera must see the pattern alone
+                self.stats.pattern_frames += 1
                 self.present(pattern, frame.index, frame.t_read, t0, overlay=False)
             elif self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
