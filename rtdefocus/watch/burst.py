@@ -209,9 +209,16 @@ def dot_points(calib: Calibration, spacing: int) -> tuple[np.ndarray, np.ndarray
         # On its own plane a point is -(its distance to the plane's nearest fold) outside.
         inside = calib.layout.outside(pts[:, 0].astype(float), pts[:, 1].astype(float))
         pts = pts[inside.min(axis=0) < -reach]
+    if len(pts):
+        # Only dots the camera sees whole (a moved projector may light beyond its view).
+        cam = calib.cam_from_proj(pts[:, 0], pts[:, 1])
+        wc, hc = calib.camera_size
+        m = 2 * reach
+        pts = pts[(cam[:, 0] >= m) & (cam[:, 0] < wc - m) & (cam[:, 1] >= m) & (cam[:, 1] < hc - m)]
     if len(pts) < 3:
-        raise InputError(f"a dot burst needs room for at least 3 dots; the "
-                         f"{wp}x{hp} frame has {len(pts)} (kernels too wide for the frame)")
+        raise InputError(f"a dot burst needs room for at least 3 dots the camera sees; the "
+                         f"{wp}x{hp} frame has {len(pts)} (kernels too wide for the frame, or "
+                         "the projection outside the camera's view)")
     return pts, kernel_radii(calib, pts)
 
 

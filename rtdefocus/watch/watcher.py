@@ -480,8 +480,10 @@ class Watcher:
                 self.false_alarms += 1
             del self._active[kind]
             return
-        # The band ratio tells a blur change from none; its size, a dot burst measures.
-        if o and o.focus == "always" and kind == "focus" and mends == 0 \
+        # What the content sizes only roughly (a blur change, if asked), or cannot align (a
+        # move too large: the refit does not converge), the patterns measure.
+        if o and mends == 0 and ((kind == "focus" and o.focus == "always") or (
+                kind == "geometry" and not math.isfinite(detail.get("refit_left_px", 0.0)))) \
                 and self._start_burst(kind, t, detail):
             return
         self._hand_over(kind, new, detail, t)
