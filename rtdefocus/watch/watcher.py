@@ -228,6 +228,7 @@ class Watcher:
         self._shown: list[tuple[float, np.ndarray]] = []
         self.bursts = bursts
         self._bursts = BurstRunner(bursts)
+        self._before: dict[str, Calibration] = {}   # the calibration a change was detected on
 
     # ------------------------------------------------------------------ the Player's side
     @property
@@ -368,7 +369,7 @@ class Watcher:
                 self._suspect[k] += 1
                 self._measured[k].append(r)
                 if self._suspect[k] >= self.confirm:
-                    self._active[k] = 0
+                    self._active[k], self._before[k] = 0, self.calib
                     self._event(t, k, "detect", self._describe(k, r))
                     todo = todo or k
         if todo is not None:
@@ -582,7 +583,9 @@ class Watcher:
     def _finish_burst(self, b: Burst, t: float) -> None:
         """The burst's frames are captured: re-measure, and hand the mend over (or give up)."""
         try:
-            new, detail = b.solve(self.calib)
+            # A geometry burst measures the whole move: from before the content's mends of it.
+            new, detail = b.solve(self._before[b.kind] if b.kind == "geometry"
+                                  and self._active.get(b.kind) else self.calib)
             self._hand_over(b.kind, new, detail, t, b.shown)
         except RtDefocusError as exc:
             self._active[b.kind] = self.max_mends + 1
