@@ -13,7 +13,8 @@ Rows, each frame shown to the same camera:
 ``none``      the original calibration throughout;
 ``watch``     the :class:`~rtdefocus.watch.Watcher` in synchronous mode on a simulated clock,
               each of its updates applied between two frames; while it does not trust its
-              model, the frame goes out with geometry only;
+              model, the frame goes out with geometry only, and during one of its pattern
+              bursts the burst's frame instead (counted per event as pattern frames);
 ``oracle``    re-calibrated with the truth at each event (:func:`~rtdefocus.sim.oracle_calibration`);
 ``geometry``  geometry only with the geometry the watch row has at that frame (the floor the
               watch row must not fall below by more than 0.5 dB while a change is unmended).
