@@ -273,3 +273,25 @@ def test_content_too_plain_for_too_long_while_untrusted_brings_a_geometry_burst(
     (burst,) = [e for e in w.events if e.action == "burst"]
     assert burst.kind == "geometry" and 1.0 <= burst.t <= 1.5
     assert any("geometry" in r.getMessage() and "burst" in r.getMessage() for r in caplog.records)
+
+
+def test_threaded_watcher_shows_a_burst_and_hands_its_mend_over():
+    """On the watch thread (as on hardware): the burst's frames are captured as the Player
+    shows them, the re-measure runs on the thread, and its update reaches poll()."""
+    pc, calib = setup()
+    clock = [0.0]
+    w = Watcher(calib, camera_view(pc), clock=lambda: clock[0], threaded=True, bursts=ALWAYS)
+    updates, patterns = [], 0
+    for i in range(int(3.5 * FPS)):
+        clock[0] = i / FPS
+        if i == int(1.5 * FPS):
+            pc.refocus(1.15)
+        if (up := w.poll()) is not None:
+            updates.append(up)
+        pattern = w.pattern()
+        patterns += pattern is not None
+        w.offer(content(i % 30) if pattern is None else pattern)
+        w.close()                         # a slow frame loop: each look ends before the next
+    (mend,) = [e for e in w.events if e.action == "mend"]
+    assert mend.kind == "focus" and mend.pattern_frames == patterns == BurstOptions().dot_frames
+    assert [u.kinds for u in updates] == [("focus",)] and updates[0].calibration is w.calib

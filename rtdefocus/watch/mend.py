@@ -228,7 +228,9 @@ def rescale_radii(calib: Calibration, scale: float) -> Calibration:
     The kernels are ordered by equivalent radius; each pixel's radius is its kernel field's
     blend of theirs, and its new kernel the blend of the two whose radii bracket ``scale``
     times it. Radii beyond the family's range take the nearest end kernel zoomed
-    (:func:`rescale_kernels`' zoom), added to the family."""
+    (:func:`rescale_kernels`' zoom), added to the family. The family is one for the whole
+    frame: a field that blends kernels of several sample points or planes of one radius
+    becomes a blend of the two nearest in radius."""
     if not calib.has_psf:
         raise InputError("rescale_radii needs the calibration's kernels (its PSF section)")
     scale = float(scale)
