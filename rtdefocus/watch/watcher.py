@@ -564,7 +564,7 @@ class Watcher:
         detail = {"kernel_scale": round(scale, 4)}
         if not 0.5 < scale < 2.0:
             raise InputError(f"no radius scale within [0.5, 2] explains the band ratio ({scale:.3g})")
-        if abs(scale - 1.0) < 0.04:
+        if abs(scale - 1.0) < 0.06:
             # The kernels explain this content: its band level is one of a right model (the
             # ratio moves a few per cent with the content's spectrum), measured again from here.
             self._band_base = [b for b in map(band_level, reports) if math.isfinite(b)]
