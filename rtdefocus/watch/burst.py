@@ -57,7 +57,7 @@ class BurstOptions:
         moves a little with the content's spectrum; the dots do not), ``"never"``.
     geometry : a geometry burst for a move the content alignment does not mend
         (``geometry_after`` content mends that did not clear it, a mend that could not be
-        estimated, or the camera no longer sees the show as calibrated), or while the model
+        estimated, or the camera does not see the show as calibrated), or while the model
         is untrusted and the content is too plain to align for ``plain_s`` seconds.
     dot_frames : frames the dot pattern is captured (averaged: the camera's noise).
     dot_spacing : grid step of the dots (projector px; raised where the kernels need more room).
