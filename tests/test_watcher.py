@@ -79,7 +79,8 @@ def play(pc, calib, seconds, change=None, **kw):
         if change is not None and i == int(round(CHANGE_AT * FPS)):
             getattr(pc, change[0])(**change[1])
         w.poll()                                # the Player's side (applied elsewhere)
-        w.offer(content(i))
+        pattern = w.pattern()                   # a burst: its pattern instead of the content
+        w.offer(content(i) if pattern is None else pattern)
     return w
 
 

@@ -235,7 +235,7 @@ def _hardware_watcher(args, calib, sink):
     from ..errors import InputError
     from ..hardware import hardware_procam as procam_mod
     from ..hardware import remembered as rem
-    from ..watch import Watcher, camera_view
+    from ..watch import BurstOptions, Watcher, camera_view
 
     window = getattr(sink, "window", None)
     if window is None:
@@ -260,8 +260,10 @@ def _hardware_watcher(args, calib, sink):
     # Threaded on the perf_counter clock: a look's picture is paired with the frame that was
     # on the wall when the camera saw it (HardwareProCam.looked_at).
     period = HARDWARE_LOOK_PERIOD if args.watch_period is None else args.watch_period
+    # A burst's patterns are held until the camera sees them (the measured latency).
+    bursts = BurstOptions.for_latency(procam.latency_s, args.fps or 30.0)
     return Watcher(calib, camera_view(procam), period_s=period, threaded=True,
-                   recheck_s=min(period, HARDWARE_RECHECK)), procam
+                   recheck_s=min(period, HARDWARE_RECHECK), bursts=bursts), procam
 
 
 def _screen(screen: int | None, calib) -> int:

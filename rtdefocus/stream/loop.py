@@ -129,7 +129,8 @@ class Player:
     watcher : rtdefocus.watch.Watcher, optional
         Offered every frame shown; its mended calibration is swapped in between two frames (a
         new Compensator, :meth:`~rtdefocus.Compensator.with_calibration`), and while it does not
-        trust the model, frames are shown with geometry only.
+        trust the model, frames are shown with geometry only; during one of its pattern
+        bursts its pattern frames are shown instead (:meth:`~rtdefocus.watch.Watcher.pattern`).
 
     Notes
     -----
@@ -313,11 +314,12 @@ class Player:
         return (self.budget is not None and prev is not None and prev.shape == image.shape
                 and np.array_equal(prev, image))
 
-    def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float) -> None:
-        """Show ``out`` as frame ``index`` (with the overlay when it is on): its latency counts
-        from ``t_read`` (None: not a read frame), its frame time from ``t_start``."""
+    def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float,
+                overlay: bool = True) -> None:
+        """Show ``out`` as frame ``index`` (with the overlay when it is on and ``overlay``): its
+        latency counts from ``t_read`` (None: not a read frame), its frame time from ``t_start``."""
         st = self.stats
-        if self.controls.overlay:
+        if self.controls.overlay and overlay:
             out = draw_overlay(out, st.overlay_lines(self.controls.mode, self.controls.paused))
         t0 = time.perf_counter()
         (self._writer or self.sink).write(out, index)   # the writer: hand-off only
@@ -500,7 +502,11 @@ class Player:
             self._last_index = frame.index
             self._apply_watch()
             t0 = time.perf_counter()
-            if self._direct_geometry():
+            pattern = self.watcher.pattern() if self.watcher is not None else None
+            if pattern is not None:     # a burst: the camera must see the pattern alone
+                self.stats.pattern_frames += 1
+                self.present(pattern, frame.index, frame.t_read, t0, overlay=False)
+            elif self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
             else:
                 # ``still``: the picture did not change; ``repeat``: nor since the last frame

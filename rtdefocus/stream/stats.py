@@ -78,6 +78,8 @@ class LoopStats:
         the screen (a still, a paused camera): nothing the audience would have seen is lost.
     geometry_frames : int
         Frames shown with geometry only to keep up (realtime playback, ``Player(catch_up=True)``).
+    pattern_frames : int
+        Frames of a watcher's pattern bursts, shown instead of the content.
     stages : dict[str, Series]
         Seconds per frame of each stage: ``read`` (source read + decode, decoder thread),
         ``compensate`` (the whole Compensator call), its own stages (``warp``, ``decode``,
@@ -107,6 +109,7 @@ class LoopStats:
         self.dropped = 0
         self.dropped_copies = 0
         self.geometry_frames = 0
+        self.pattern_frames = 0
         self.stages: dict[str, Series] = {}
         self.iterations = Series()
         self.residual: float | None = None
@@ -170,6 +173,8 @@ class LoopStats:
                  f"dropped {self.dropped}  geometry only {self.geometry_frames}",
                  f"ms: {ms}",
                  f"{it}  {res}  mode {mode}{'  PAUSED' if paused else ''}"]
+        if self.pattern_frames:
+            lines.append(f"watch: {self.pattern_frames} pattern frames (bursts)")
         if self.clipped.count:
             lines.append(f"clipped {100 * self.clipped.last:.1f} % bright  "
                          f"{100 * self.clipped_dark.last:.1f} % dark")
@@ -181,6 +186,7 @@ class LoopStats:
             "source": self.source, "sink": self.sink,
             "frames_in": self.frames_in, "frames_out": self.frames_out, "dropped": self.dropped,
             "dropped_copies": self.dropped_copies, "geometry_frames": self.geometry_frames,
+            "pattern_frames": self.pattern_frames,
             "seconds": round(self.seconds, 4), "fps": round(self.fps, 3),
             "stages_ms": {k: {m: round(v, 3) if isinstance(v, float) else v
                               for m, v in s.as_dict(1e3).items()} for k, s in self.stages.items()},
@@ -201,6 +207,8 @@ class LoopStats:
         if self.geometry_frames:
             lines.append(f"  {self.geometry_frames} frames shown with geometry only to keep up "
                          "(compensating them would have dropped the next)")
+        if self.pattern_frames:
+            lines.append(f"  {self.pattern_frames} pattern frames shown by the watcher's bursts")
         if self.stages:
             width = max(len(k) for k in self.stages)
             lines.append(f"  {'stage':<{width}}  {'mean ms':>9}  {'p95 ms':>9}  {'frames':>7}")

@@ -13,7 +13,8 @@ Rows, each frame shown to the same camera:
 ``none``      the original calibration throughout;
 ``watch``     the :class:`~rtdefocus.watch.Watcher` in synchronous mode on a simulated clock,
               each of its updates applied between two frames; while it does not trust its
-              model, the frame goes out with geometry only;
+              model, the frame goes out with geometry only, and during one of its pattern
+              bursts the burst's frame instead (counted per event as pattern frames);
 ``oracle``    re-calibrated with the truth at each event (:func:`~rtdefocus.sim.oracle_calibration`);
 ``geometry``  geometry only with the geometry the watch row has at that frame (the floor the
               watch row must not fall below by more than 0.5 dB while a change is unmended).
@@ -233,6 +234,8 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
         show.start_frame()
         seg, image = clip[i % len(clip)]
         reference = show.view(show.warp(oracle, image), sharp=True)
+        # a burst in progress: the watch row shows its pattern frame instead of the content
+        pattern = watcher.pattern() if watcher is not None else None
         frames = {}
         for row in rows:
             if row == "none":
@@ -241,6 +244,8 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                 frames[row] = show.compensate(oracle, image)
             elif row == "geometry":
                 frames[row] = show.warp(watch_calib, image)
+            elif pattern is not None:
+                frames[row] = pattern
             else:
                 frames[row] = (show.compensate(watch_calib, image) if watcher.trusted
                                else show.warp(watch_calib, image))
@@ -248,6 +253,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                "psnr": {row: show.score(frames[row], reference) for row in rows}}
         if watcher is not None:
             rec["trusted"] = bool(watcher.trusted)
+            rec["pattern"] = pattern is not None
             rec["watch_geometry_px"] = geometry_error_px(watch_calib, oracle)
             watcher.offer(frames["watch"], image)
         records.append(rec)
@@ -358,7 +364,10 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
             fig["detected_as"] = str(det[0].get("kind")) if det else None
             fig["detections"] = len(det)
             fig["geometry_only_s"] = sum(not r.get("trusted", True) for r in span) / play["fps"]
-            fig["pattern_frames"] = int(sum(int(e.get("pattern_frames", 0) or 0) for e in wev))
+            # the frames the watch row showed as patterns (else what the watcher's events say)
+            fig["pattern_frames"] = (sum(bool(r["pattern"]) for r in span) if span and "pattern"
+                                     in span[0] else int(sum(int(e.get("pattern_frames", 0) or 0)
+                                                             for e in wev)))
             ups = [u for u in play["updates"] if t0 <= u["t"] < t1]
             fig["mended_s"] = ups[0]["t"] - t0 if ups else None
             fig["updates"] = len(ups)
@@ -370,8 +379,9 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
                 fig["recovered_s"] = span[first]["t"] - t0 if first is not None else None
             if "geometry" in rows:
                 mend = t0 + fig["mended_s"] if ups else t1
+                # (a burst's pattern frames are no picture: counted above, not compared)
                 before = [r["psnr"]["watch"] - r["psnr"]["geometry"] for r in span
-                          if r["t"] < mend]
+                          if r["t"] < mend and not r.get("pattern")]
                 fig["worst_vs_geometry_db"] = float(min(before)) if before else None
         out.append(fig)
     return out
@@ -419,7 +429,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     clock = _ShowClock()
     watcher = _new_watcher(calib, procam, clock, watcher_options)
     n = int(round(seconds * fps))
-    updates, geometry_frames = [], 0
+    updates, geometry_frames, pattern_frames = [], 0, 0
     say(f"false alarms: {n} frames at {fps:g} fps ({seconds:g} s), {wp}x{hp} {preset}, unchanged")
     for i in range(n):
         clock.t = i / fps
@@ -429,7 +439,10 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
             updates.append(_update_info(upd, clock.t, i))
         show.start_frame()
         image = clip[i % len(clip)][1]
-        if watcher.trusted:
+        pattern = watcher.pattern()
+        if pattern is not None:
+            frame, pattern_frames = pattern, pattern_frames + 1
+        elif watcher.trusted:
             frame = show.compensate(calib, image)
         else:
             frame, geometry_frames = show.warp(calib, image), geometry_frames + 1
@@ -442,7 +455,8 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     return {"preset": preset, "size": (wp, hp), "fps": float(fps), "seconds": float(seconds),
             "frames": n, "detections": len(_detections(events)), "updates": len(updates),
             "retracted": int(watcher.false_alarms),
-            "geometry_frames": geometry_frames, "watch_events": events,
+            "geometry_frames": geometry_frames, "pattern_frames": pattern_frames,
+            "watch_events": events,
             "update_list": updates}
 
 

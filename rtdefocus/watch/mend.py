@@ -173,7 +173,13 @@ def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
     scale = float(scale)
     if not (np.isfinite(scale) and 0.25 <= scale <= 4.0):
         raise InputError(f"kernel scale must be within [0.25, 4]; got {scale!r}")
-    psfs = np.asarray(calib.psfs, np.float32)
+    out = _zoom_all(np.asarray(calib.psfs, np.float32), scale)
+    return _derive(calib, psfs=out)
+
+
+def _zoom_all(psfs: np.ndarray, scale: float) -> np.ndarray:
+    """(n, k, k) kernels zoomed about their centres by ``scale`` (cubic point samples, unit
+    sum), on a common support grown to hold them."""
     n, k, _ = psfs.shape
     k_new = max(k, int(2 * np.ceil(0.5 * (k - 1) * scale) + 1))
     c_old, c_new = 0.5 * (k - 1), 0.5 * (k_new - 1)
@@ -193,5 +199,78 @@ def rescale_kernels(calib: Calibration, scale: float) -> Calibration:
         else:                      # a kernel too small to sample: a delta
             out[i] = 0.0
             out[i, k_new // 2, k_new // 2] = 1.0
-    return _derive(calib, psfs=out)
+    return out
 
+
+def _pad_to(psfs: np.ndarray, k: int) -> np.ndarray:
+    n, kk, _ = psfs.shape
+    out = np.zeros((n, k, k), np.float32)
+    o = (k - kk) // 2
+    out[:, o:o + kk, o:o + kk] = psfs
+    return out
+
+
+def _optical_radius(psf: np.ndarray) -> float:
+    """A kernel's blur radius with its pixel's own spread taken out: the equivalent disc
+    radius of a kernel sampled on pixels is sqrt(r² + 1/3) (a pixel's variance, 1/6 in
+    u² + v²), which does not scale with r."""
+    from ..calib.psf.dots import equivalent_radius
+
+    return float(np.sqrt(max(equivalent_radius(psf) ** 2 - 1.0 / 3.0, 0.0)))
+
+
+def rescale_radii(calib: Calibration, scale: float) -> Calibration:
+    """The calibration with every pixel's blur radius scaled by ``scale``, its kernel taken
+    from the calibration's own kernels by radius (a thin lens's kernel is a function of its
+    blur radius, so the measured kernel of the new radius is the right one; pixel-sized
+    kernels zoom badly, see :func:`rescale_kernels`).
+
+    The kernels are ordered by equivalent radius; each pixel's radius is its kernel field's
+    blend of theirs, and its new kernel the blend of the two whose radii bracket ``scale``
+    times it. Radii beyond the family's range take the nearest end kernel zoomed
+    (:func:`rescale_kernels`' zoom), added to the family. The family is one for the whole
+    frame: a field that blends kernels of several sample points or planes of one radius
+    becomes a blend of the two nearest in radius."""
+    if not calib.has_psf:
+        raise InputError("rescale_radii needs the calibration's kernels (its PSF section)")
+    scale = float(scale)
+    if not (np.isfinite(scale) and 0.25 <= scale <= 4.0):
+        raise InputError(f"radius scale must be within [0.25, 4]; got {scale!r}")
+    psfs = np.asarray(calib.psfs, np.float32)
+    radius = np.array([_optical_radius(p) for p in psfs])
+    idx, wts = np.asarray(calib.pix_idx), np.asarray(calib.pix_wts, np.float32)
+    r_pix = np.einsum("hwj,hwj->hw", wts, radius[idx].astype(np.float32))
+    target = scale * r_pix
+    lo_i, hi_i = int(np.argmin(radius)), int(np.argmax(radius))
+    extra = []
+    # Zoomed copies of the end kernels, 3 % apart, cover radii beyond the family's range.
+    # (a kernel of no measurable radius, a delta, has nothing to zoom)
+    for end, reach in ((hi_i, float(target.max()) / max(radius[hi_i], 1e-6)),
+                       (lo_i, float(target.min()) / max(radius[lo_i], 1e-6))):
+        if radius[end] > 0.1 and ((reach > 1.0 and end == hi_i) or (reach < 1.0 and end == lo_i)):
+            reach = min(max(reach, 0.25), 4.0)
+            steps = int(np.ceil(abs(np.log(reach)) / np.log(1.03)))
+            for f in np.exp(np.linspace(0.0, np.log(reach), steps + 1)[1:]):
+                extra.append((end, float(f)))
+    family = [psfs]
+    for end, f in extra:
+        family.append(_zoom_all(psfs[end:end + 1], f))
+    k = max(p.shape[1] for p in family)
+    fam = np.concatenate([_pad_to(p, k) for p in family]).astype(np.float32)
+    fam_r = np.array([_optical_radius(p) for p in fam])
+    order = np.argsort(fam_r, kind="stable")
+    # strictly increasing radii (kernels of one radius are one entry)
+    keep = np.concatenate([[True], np.diff(fam_r[order]) > 1e-6])
+    order = order[keep]
+    R = fam_r[order]
+    j = np.clip(np.searchsorted(R, target), 1, len(R) - 1)
+    t = np.clip((target - R[j - 1]) / (R[j] - R[j - 1]), 0.0, 1.0).astype(np.float32)
+    new_idx = np.zeros_like(idx)
+    new_wts = np.zeros_like(wts)
+    new_idx[..., 0], new_idx[..., 1] = order[j - 1], order[j]
+    new_wts[..., 0], new_wts[..., 1] = 1.0 - t, t
+    # A zoomed end kernel keeps the point and plane it was measured at.
+    src = np.array(list(range(len(psfs))) + [end for end, _ in extra], int)
+    return _derive(calib, psfs=fam, pix_idx=new_idx.astype(idx.dtype), pix_wts=new_wts,
+                   psf_points_proj=np.asarray(calib.psf_points_proj)[src],
+                   psf_plane=np.asarray(calib.psf_plane)[src])

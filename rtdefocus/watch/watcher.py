@@ -24,15 +24,22 @@ content, with no pattern on the screen:
   planes' content warps better, and the mend is then refined to a few hundredths of a pixel by
   direct alignment of the content (:mod:`~rtdefocus.watch.refit`);
 * focus: every kernel's radius rescaled by the factor that brings the band-pass ratio back to
-  its level while the model was right.
+  its level while the model was right (:func:`~rtdefocus.watch.mend.rescale_radii`).
+
+What the content cannot mend, a short burst of calibration patterns does
+(:mod:`~rtdefocus.watch.burst`, :class:`BurstOptions`): :meth:`Watcher.pattern` hands the Player
+the frames to show instead of the content, the watcher captures them through its look and
+re-measures: a dot burst for a focus change the band ratio cannot size (or for every one,
+``BurstOptions(focus="always")``), a geometry burst for a move the content mends did not clear,
+a mend the content cannot estimate, a lost view, or content too plain to align for too long
+while the model is untrusted. Each burst is logged as a warning, its pattern frames are
+counted in its events, and its mend is handed over whole, as the others.
 
 The mend becomes a new :class:`~rtdefocus.calib.file.Calibration` (the one in use is never
 modified), handed to the Player by :meth:`Watcher.poll` as a :class:`WatchUpdate` that it
 applies between two frames. The next look checks it: below the low threshold the kind is
 cleared; otherwise what is left is mended the same way (at most ``max_mends`` times; then the
 watcher gives up, says so, and frames stay geometry only: the set-up needs a calibration).
-A short burst of calibration patterns for changes the content cannot mend is not part of
-this watcher.
 """
 
 from __future__ import annotations
@@ -50,7 +57,9 @@ import numpy as np
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
 from ..reference.lut import decode_lut
-from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
+from .burst import BURSTS, Burst, BurstOptions, BurstRunner
+from .focus import band_level, fit_band_scale
+from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_radii
 from .refit import content_warps, refit_geometry, which_moved
 from .residual import ResidualReport, residual_report
 
@@ -71,7 +80,8 @@ class WatchEvent:
     ----------
     t : show time (s, the watcher's clock) of the look that led to it.
     kind : "geometry" | "light" | "focus" | "lost" (the camera no longer sees the frame).
-    action : "detect" (a change confirmed: the model is no longer trusted), "mend" (a new
+    action : "detect" (a change confirmed: the model is no longer trusted), "burst" (pattern
+        frames to be shown instead of the content, to re-measure it), "mend" (a new
         calibration handed to the Player), "cleared" (a later look found the model right for
         this kind again), "retract" (a confirmed change whose mend came out too small to
         apply: a false alarm), "give up" (the mends did not converge: a re-calibration is
@@ -133,12 +143,6 @@ class Thresholds:
     min_band: float = 0.008
 
 
-def _band(r: ResidualReport) -> float:
-    """The band ratio with the light fit's gain taken out: a light mend moves the gain into
-    the albedo, which would otherwise move the ratio's level as much."""
-    return r.band_ratio / r.gain if r.gain > 0 else float("nan")
-
-
 class Watcher:
     """Watches the show through the camera and mends the calibration it runs with.
 
@@ -166,6 +170,7 @@ class Watcher:
     max_mends : mends of one change before the watcher gives up (the change needs a
         re-calibration; the model stays untrusted, frames geometry only).
     report : the residual report function (``residual_report``'s signature).
+    bursts : :class:`BurstOptions` (None: mend from the content alone, never a pattern).
 
     Attributes
     ----------
@@ -175,7 +180,8 @@ class Watcher:
         estimated, was below the low threshold (nothing applied). An evaluation that knows
         when the set-up changed counts its own: detections with no change since the last one.
     looks : looks made; last_report : the last look's report.
-    untrusted_frames : frames offered while the model was not trusted (shown geometry only).
+    untrusted_frames : frames offered while the model was not trusted (shown geometry only;
+        a burst's pattern frames are counted in its events).
     """
 
     def __init__(self, calib: Calibration, look: Callable[[np.ndarray], np.ndarray], *,
@@ -183,7 +189,7 @@ class Watcher:
                  threaded: bool = True, thresholds: Thresholds | None = None, confirm: int = 2,
                  max_mends: int = 4, band_looks: int = 4,
                  report: Callable[..., ResidualReport] = residual_report,
-                 recheck_s: float | None = None):
+                 recheck_s: float | None = None, bursts: BurstOptions | None = BURSTS):
         if not (math.isfinite(period_s) and period_s >= 0):
             raise InputError(f"period_s must be a number of seconds >= 0; got {period_s!r}")
         if recheck_s is not None and not (math.isfinite(recheck_s) and recheck_s >= 0):
@@ -220,6 +226,9 @@ class Watcher:
         # (show time, frame) offered since the look in flight started, for a look that says
         # when its picture was on the wall (LiveView.looked_at)
         self._shown: list[tuple[float, np.ndarray]] = []
+        self.bursts = bursts
+        self._bursts = BurstRunner(bursts)
+        self._before: dict[str, Calibration] = {}   # the calibration a change was detected on
 
     # ------------------------------------------------------------------ the Player's side
     @property
@@ -233,9 +242,18 @@ class Watcher:
         """The Player showed ``shown`` ((Hp, Wp, 3) uint8, the projector frame) for the input
         ``source``: look now if a look is due. Returns whether a look was started."""
         self._raise_error()
-        if not self.trusted:
+        if not self.trusted and not self._bursts.asked:     # (a pattern frame is no picture)
             self.untrusted_frames += 1
         t = float(self.clock())
+        if self._bursts.burst is not None:
+            b = self._bursts.offered(self.look)
+            if b is not None and self.threaded:      # the Player goes on, geometry only
+                self._thread = threading.Thread(target=self._finish_burst, args=(b, t),
+                                                name="rtdefocus-burst", daemon=True)
+                self._thread.start()
+            elif b is not None:
+                self._finish_burst(b, t)
+            return False
         pairs = self.threaded and hasattr(self.look, "looked_at")
         if self.threaded and self._thread is not None and self._thread.is_alive():
             if pairs:
@@ -258,6 +276,11 @@ class Watcher:
         self._last_look = t
         self.step(shown, self.look(shown), t)
         return True
+
+    def pattern(self) -> np.ndarray | None:
+        """The (Hp, Wp, 3) uint8 pattern frame to show next instead of the content (a burst in
+        progress; then :meth:`offer` it as shown), or None: show the content."""
+        return self._bursts.pattern()
 
     def poll(self) -> WatchUpdate | None:
         """The update waiting to be applied between two frames (once), or None."""
@@ -313,12 +336,17 @@ class Watcher:
                 self._event(t, "lost", "detect", {"error": str(exc)})
                 log.warning("the camera no longer sees the show as calibrated (%s): showing "
                             "geometry only; re-calibrate (`rtdefocus calibrate`)", exc)
+                self._start_burst("geometry", t)
             self._update_trust()
             return None
         self.last_report = r
         if self._active.pop("lost", None) is not None:
             self._event(t, "lost", "cleared", {})
         over, under, informative = self._classify(r, self._informative(shown))
+        # Untrusted and too plain to align for too long: the geometry patterns say it.
+        if self._bursts.plain_too_long(bool(self._active) and not informative["geometry"], t) \
+                and self._start_burst("geometry", t):
+            return r
         todo = None
         blocked = False          # an earlier kind is changing: later kinds are not judged
         for k in KINDS:
@@ -341,7 +369,7 @@ class Watcher:
                 self._suspect[k] += 1
                 self._measured[k].append(r)
                 if self._suspect[k] >= self.confirm:
-                    self._active[k] = 0
+                    self._active[k], self._before[k] = 0, self.calib
                     self._event(t, k, "detect", self._describe(k, r))
                     todo = todo or k
         if todo is not None:
@@ -349,8 +377,8 @@ class Watcher:
             self._mend(todo, shown, capture, t)
         elif not self._active and not any(over.values()):
             # The levels of a model known right, each from looks that can tell it.
-            if informative["focus"] and math.isfinite(_band(r)):
-                self._band_base = (self._band_base + [_band(r)])[-16:]
+            if informative["focus"] and math.isfinite(band_level(r)):
+                self._band_base = (self._band_base + [band_level(r)])[-16:]
             if informative["light"]:
                 self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
@@ -391,7 +419,7 @@ class Watcher:
         amb = abs(r.ambient_added - a_ref)
         base = (float(np.median(self._band_base)) if len(self._band_base) >= self.band_looks
                 else None)
-        band = _band(r)
+        band = band_level(r)
         focus = abs(band / base - 1.0) if base and math.isfinite(band) else 0.0
         psf = self.calib.has_psf
         # Light is judged only against its measured levels: a calibration rarely explains
@@ -435,11 +463,17 @@ class Watcher:
                             kind, mends)
                 self._active[kind] = mends + 1
             return
+        o = self.bursts
+        if o and kind == "geometry" and mends >= o.geometry_after and self._start_burst(kind, t):
+            return
         try:
             new, detail = self._estimate(kind, reports, shown, capture)
         except RtDefocusError as exc:
             log.warning("could not mend the %s change: %s", kind, exc)
             self._active[kind] = mends + 1
+            # A mend the content cannot even estimate (a light fit with a negative gain: the
+            # picture is not where the model puts it): the patterns say what changed.
+            self._start_burst("focus" if kind == "focus" else "geometry", t)
             return
         if new is None:
             self._event(t, kind, "retract", detail)
@@ -447,9 +481,25 @@ class Watcher:
                 self.false_alarms += 1
             del self._active[kind]
             return
-        self._active[kind] = mends + 1
+        # What the content sizes only roughly (a blur change, if asked), or cannot align (a
+        # move too large: the refit does not converge), the patterns measure.
+        if o and mends == 0 and ((kind == "focus" and o.focus == "always") or (
+                kind == "geometry" and not math.isfinite(detail.get("refit_left_px", 0.0)))) \
+                and self._start_burst(kind, t, detail):
+            return
+        self._hand_over(kind, new, detail, t)
+
+    def _hand_over(self, kind: str, new: Calibration, detail: dict, t: float,
+                   patterns: int = 0) -> None:
+        """A mend made: the new calibration in use, the update waiting for the Player."""
+        self._active[kind] = self._active.get(kind, 0) + 1
+        if kind == "focus":
+            # The band level belongs to the old kernels and to the content it was read on (a
+            # compensated frame's spectrum): it is measured again with the new kernels, and
+            # until then focus is not judged.
+            self._band_base = []
         self.calib = new
-        self._event(t, kind, "mend", detail)
+        self._event(t, kind, "mend", detail, patterns)
         with self._lock:
             kinds = (kind,) if self._pending is None else tuple(dict.fromkeys(
                 (*self._pending.kinds, kind)))
@@ -510,58 +560,40 @@ class Watcher:
         if not self._band_base:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
         base = float(np.median(self._band_base))
-        scale = self._fit_scale(shown, capture, base)
+        scale = fit_band_scale(self.calib, shown, capture, base, self.report)
         detail = {"kernel_scale": round(scale, 4)}
-        if abs(scale - 1.0) < 0.04:
+        if not 0.5 < scale < 2.0:
+            raise InputError(f"no radius scale within [0.5, 2] explains the band ratio ({scale:.3g})")
+        if abs(scale - 1.0) < 0.06:
             # The kernels explain this content: its band level is one of a right model (the
             # ratio moves a few per cent with the content's spectrum), measured again from here.
-            self._band_base = [b for b in map(_band, reports) if math.isfinite(b)]
+            self._band_base = [b for b in map(band_level, reports) if math.isfinite(b)]
             return None, detail
-        # The band level belongs to the old kernels and to the content it was read on (a
-        # compensated frame's spectrum): it is measured again with the new kernels, and until
-        # then focus is not judged.
-        self._band_base = []
-        return rescale_kernels(calib, scale), detail
+        return rescale_radii(calib, scale), detail
 
-    def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, level: float,
-                   lo: float = 0.5, hi: float = 2.0, tol: float = 0.005) -> float:
-        """The kernel radius scale whose prediction brings the band ratio of ``capture`` back
-        to ``level``, its value while the model was right (the ratio grows with the scale: a
-        blurrier prediction has less band-pass energy). Regula falsi (Illinois) on log scale.
+    # ------------------------------------------------------------------ bursts
+    def _start_burst(self, kind: str, t: float, detail: dict | None = None) -> bool:
+        b = self._bursts.start(kind, self.calib, t)
+        if b is not None:
+            self._active.setdefault(kind, 0)
+            self._event(t, kind, "burst", {"frames": b.frames, **(detail or {})})
+            self._update_trust()
+        return b is not None
 
-        The ratio, not the residual, is matched: the observation is smoothed by its
-        resampling into projector pixels, so the least residual lies at a larger scale than
-        the true one."""
-        def g(log_s: float) -> float:
-            c = self.calib if log_s == 0.0 else rescale_kernels(self.calib, math.exp(log_s))
-            return math.log(_band(self.report(c, shown, capture)) / level)
-
-        a, b = 0.0, 0.0
-        fa = g(0.0)
-        # Bracket the root from s = 1 outwards.
-        step = math.log(1.15) if fa < 0 else -math.log(1.15)
-        b = step
-        fb = g(b)
-        while fa * fb > 0:
-            if abs(b) >= math.log(hi if step > 0 else 1 / lo):
-                return math.exp(b)
-            a, fa = b, fb
-            b = b + step
-            fb = g(b)
-        side = 0
-        for _ in range(12):
-            c = b - fb * (b - a) / (fb - fa)
-            fc = g(c)
-            if abs(b - a) < tol or fc == 0:
-                return math.exp(c)
-            if fc * fb < 0:
-                a, fa = b, fb
-                if side == -1:
-                    fa /= 2
-                side = -1
-            else:
-                if side == 1:
-                    fa /= 2
-                side = 1
-            b, fb = c, fc
-        return math.exp(b)
+    def _finish_burst(self, b: Burst, t: float) -> None:
+        """The burst's frames are captured: re-measure, and hand the mend over (or give up)."""
+        try:
+            # A geometry burst measures the whole move: from before the content's mends of it.
+            new, detail = b.solve(self._before[b.kind] if b.kind == "geometry"
+                                  and self._active.get(b.kind) else self.calib)
+            self._hand_over(b.kind, new, detail, t, b.shown)
+        except RtDefocusError as exc:
+            self._active[b.kind] = self.max_mends + 1
+            self._event(t, b.kind, "give up", {"error": str(exc)}, b.shown)
+            log.warning("the %s burst could not re-measure the set-up (%s); showing geometry "
+                        "only: re-calibrate (`rtdefocus calibrate`)", b.kind, exc)
+        except BaseException as exc:          # handed to the Player's thread by poll / offer
+            self._error = exc
+        finally:
+            self._bursts.done()
+            self._last_look = t
