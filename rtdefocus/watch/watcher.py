@@ -50,6 +50,7 @@ import numpy as np
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
 from ..reference.lut import decode_lut
+from .levels import BandLevels, band_level
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
 from .refit import content_warps, refit_geometry, which_moved
 from .residual import ResidualReport, residual_report
@@ -122,6 +123,8 @@ class Thresholds:
         gain from added light); focus, its band-pass
         (difference of Gaussians, σ 1 and 2 px) RMS in linear light (below it the camera's
         noise sets the ratio). A kind a look says nothing of is neither suspected nor cleared.
+    band_match : focus is judged against the band level of looks of like content only (their
+        band-pass RMS within this factor, :class:`~rtdefocus.watch.levels.BandLevels`).
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
@@ -131,12 +134,7 @@ class Thresholds:
     min_confidence: float = 0.02
     min_contrast: float = 0.03
     min_band: float = 0.008
-
-
-def _band(r: ResidualReport) -> float:
-    """The band ratio with the light fit's gain taken out: a light mend moves the gain into
-    the albedo, which would otherwise move the ratio's level as much."""
-    return r.band_ratio / r.gain if r.gain > 0 else float("nan")
+    band_match: float = 1.15
 
 
 class Watcher:
@@ -213,7 +211,7 @@ class Watcher:
         self._last_look = -math.inf
         self._suspect: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._measured: dict[str, list] = {k: [] for k in KINDS}
-        self._band_base: list[float] = []
+        self._band_base = BandLevels(self.th.band_match, self.band_looks)
         self._light_base: list[tuple[float, float]] = []
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -318,7 +316,8 @@ class Watcher:
         self.last_report = r
         if self._active.pop("lost", None) is not None:
             self._event(t, "lost", "cleared", {})
-        over, under, informative = self._classify(r, self._informative(shown))
+        frame_informs = self._informative(shown)
+        over, under, informative = self._classify(r, frame_informs)
         todo = None
         blocked = False          # an earlier kind is changing: later kinds are not judged
         for k in KINDS:
@@ -349,8 +348,8 @@ class Watcher:
             self._mend(todo, shown, capture, t)
         elif not self._active and not any(over.values()):
             # The levels of a model known right, each from looks that can tell it.
-            if informative["focus"] and math.isfinite(_band(r)):
-                self._band_base = (self._band_base + [_band(r)])[-16:]
+            if frame_informs["focus"]:
+                self._band_base.add(r)
             if informative["light"]:
                 self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
@@ -389,10 +388,10 @@ class Watcher:
         g_ref, a_ref = self._light_ref()
         gain = abs(r.gain / g_ref - 1.0)
         amb = abs(r.ambient_added - a_ref)
-        base = (float(np.median(self._band_base)) if len(self._band_base) >= self.band_looks
-                else None)
-        band = _band(r)
+        base, band = self._band_base.level(r), band_level(r)
         focus = abs(band / base - 1.0) if base and math.isfinite(band) else 0.0
+        if base is None and self._band_base.known():
+            informative = dict(informative, focus=False)    # levels known, not on such content
         psf = self.calib.has_psf
         # Light is judged only against its measured levels: a calibration rarely explains
         # the room's light exactly, and that is no change.
@@ -507,20 +506,20 @@ class Watcher:
             new, left = refit_geometry(new, shown, capture, detail["moved"])
             detail["refit_left_px"] = round(left, 4)
             return new, detail
-        if not self._band_base:
+        base = self._band_base.level(reports[-1])
+        if base is None:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
-        base = float(np.median(self._band_base))
         scale = self._fit_scale(shown, capture, base)
         detail = {"kernel_scale": round(scale, 4)}
         if abs(scale - 1.0) < 0.04:
             # The kernels explain this content: its band level is one of a right model (the
             # ratio moves a few per cent with the content's spectrum), measured again from here.
-            self._band_base = [b for b in map(_band, reports) if math.isfinite(b)]
+            self._band_base.measure_again(reports)
             return None, detail
         # The band level belongs to the old kernels and to the content it was read on (a
         # compensated frame's spectrum): it is measured again with the new kernels, and until
         # then focus is not judged.
-        self._band_base = []
+        self._band_base.clear()
         return rescale_kernels(calib, scale), detail
 
     def _fit_scale(self, shown: np.ndarray, capture: np.ndarray, level: float,
@@ -534,7 +533,7 @@ class Watcher:
         the true one."""
         def g(log_s: float) -> float:
             c = self.calib if log_s == 0.0 else rescale_kernels(self.calib, math.exp(log_s))
-            return math.log(_band(self.report(c, shown, capture)) / level)
+            return math.log(band_level(self.report(c, shown, capture)) / level)
 
         a, b = 0.0, 0.0
         fa = g(0.0)

@@ -1,0 +1,79 @@
+"""The band-pass level the watcher judges focus against, read while the model was right.
+
+A look's band ratio (:attr:`~rtdefocus.watch.residual.ResidualReport.band_ratio`, with the
+light fit's gain taken out) moves a few per cent with the content's spectrum and the camera's
+noise: on a 240x180 frame a cut between two photographs moves it about 1.2 %, and every blur
+radius grown by 15 % about 2 %. The level is therefore kept per kind of content, keyed by the
+prediction's own band-pass RMS (:attr:`~.residual.ResidualReport.band_rms`: how much fine
+content the look had, which also sets how much the camera's noise adds), and a look is judged
+against the looks of like content only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .predictor import ResidualReport
+
+__all__ = ["BandLevels", "band_level"]
+
+
+def band_level(r: ResidualReport) -> float:
+    """The band ratio with the light fit's gain taken out: a light mend moves the gain into
+    the albedo, which would otherwise move the ratio's level as much."""
+    return r.band_ratio / r.gain if r.gain > 0 else float("nan")
+
+
+class BandLevels:
+    """Band levels of looks at a right model, each with its content's band-pass RMS.
+
+    Parameters
+    ----------
+    match : looks whose band-pass RMS is within this factor of each other have like content.
+    looks : looks of like content that make a level.
+    keep : the latest looks kept.
+    """
+
+    def __init__(self, match: float, looks: int, keep: int = 48):
+        self.match, self.looks, self.keep = float(match), int(looks), int(keep)
+        self.entries: list[tuple[float, float]] = []
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def clear(self) -> None:
+        """Forget every level (the kernels changed: the levels belong to the old ones)."""
+        self.entries = []
+
+    def add(self, r: ResidualReport) -> None:
+        """Keep the level of a look at a right model."""
+        level = band_level(r)
+        if math.isfinite(level):
+            self.entries = (self.entries + [(r.band_rms, level)])[-self.keep:]
+
+    def like(self, rms: float, r: ResidualReport) -> bool:
+        """Whether a look of band-pass RMS ``rms`` had content like ``r``'s (any, when a report
+        does not say its band-pass RMS)."""
+        e = r.band_rms
+        if not (math.isfinite(e) and e > 0 and math.isfinite(rms) and rms > 0):
+            return True
+        return abs(math.log(rms / e)) <= math.log(self.match)
+
+    def known(self) -> bool:
+        """Whether any content's level is known."""
+        return len(self.entries) >= self.looks
+
+    def level(self, r: ResidualReport) -> float | None:
+        """The median level of the looks of content like ``r``'s, or None before ``looks``
+        of them."""
+        like = [b for e, b in self.entries if self.like(e, r)]
+        return float(np.median(like)) if len(like) >= self.looks else None
+
+    def measure_again(self, reports: list[ResidualReport]) -> None:
+        """The levels of content like ``reports[-1]``'s replaced by these reports' (a right
+        model's, as a retracted focus change showed)."""
+        self.entries = [(e, b) for e, b in self.entries if not self.like(e, reports[-1])]
+        for r in reports:
+            self.add(r)
