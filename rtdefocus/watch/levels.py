@@ -7,6 +7,13 @@ radius grown by 15 % about 2 %. The level is therefore kept per kind of content,
 prediction's own band-pass RMS (:attr:`~.residual.ResidualReport.band_rms`: how much fine
 content the look had, which also sets how much the camera's noise adds), and a look is judged
 against the looks of like content only.
+
+MEASURED (`python tools/bench_watch.py --table levels --size 240x180 webcam_cubicle cubicle`,
+the drift clip on the unchanged set-ups): within a picture's still, pan or zoom the band RMS
+spreads by a factor up to 1.067 (1.5-fold in log: 1.10, under the watcher's ``band_match`` of
+1.15), the clip's two pictures lie a factor 2.0 (cubicle) and 2.7 (webcam) apart, and their
+levels 1.0-1.2 % apart; a fade passes through every RMS between them (a look in it judged
+against the first picture reads its level within 1.1 %, under the 1.2 % focus threshold).
 """
 
 from __future__ import annotations

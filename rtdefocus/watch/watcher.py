@@ -8,10 +8,10 @@ the light fit and the band-pass energy, so a later kind is not judged while an e
 changing), with hysteresis per kind: a kind is *detected* when ``confirm`` successive looks
 exceed its high threshold, and *cleared* only by a look below its low threshold. Light and
 focus are judged against their levels while the model was right (a calibration is rarely
-exact in them). A look compares the camera frame with the very frame the projector showed
-when it was taken (the Player hands that frame over), so moving content and cuts are no
-change; a look judges only what its frame can show (a plain frame tells nothing of light or
-focus, see :class:`Thresholds`).
+exact in them; focus on content like the look's). A look compares the camera frame with the
+very frame the projector showed when it was taken (the Player hands that frame over), so
+moving content and cuts are no change; a look judges only what its frame can show (a plain
+frame tells nothing of light or focus, see :class:`Thresholds`).
 
 On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
 shows geometry only, never worse than no compensation) and a mend is estimated from the
@@ -122,8 +122,8 @@ class Thresholds:
         gain from added light); focus, its band-pass
         (difference of Gaussians, σ 1 and 2 px) RMS in linear light (below it the camera's
         noise sets the ratio). A kind a look says nothing of is neither suspected nor cleared.
-    band_match : focus is judged against the band level of looks of like content only (their
-        band-pass RMS within this factor, :class:`~rtdefocus.watch.levels.BandLevels`).
+    band_match : focus is judged against the band level of looks of like content only (band
+        RMS within this factor, MEASURED in :mod:`~rtdefocus.watch.levels`).
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
