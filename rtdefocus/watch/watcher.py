@@ -114,7 +114,8 @@ class Thresholds:
         phase-correlation peak is at least ``min_confidence``.
     gain : |gain / its level while trusted − 1| (exposure or albedo change).
     ambient : |added room light − its level while trusted| (mean camera linear light).
-    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain).
+    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain;
+        MEASURED in :mod:`~rtdefocus.watch.levels`).
     min_confidence, min_contrast, min_band : what a look must offer to say anything of a kind:
         geometry, a plane's phase-correlation peak (it falls with the frame's size: about
         0.08 at 240×180, 0.04 at 800×600 on smooth texture, under 0.01 on a plain frame);
@@ -133,7 +134,7 @@ class Thresholds:
     min_confidence: float = 0.02
     min_contrast: float = 0.03
     min_band: float = 0.008
-    band_match: float = 1.15
+    band_match: float = 1.10
 
 
 class Watcher:
