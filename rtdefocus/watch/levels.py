@@ -2,8 +2,8 @@
 
 A look's band ratio (:attr:`~rtdefocus.watch.residual.ResidualReport.band_ratio`, with the
 light fit's gain taken out) moves a few per cent with the content's spectrum and the camera's
-noise: on a 240x180 frame a cut between two photographs moves it about 1.2 %, and every blur
-radius grown by 15 % about 2 %. The level is therefore kept per kind of content, keyed by the
+noise: on a 240x180 frame a cut between two photographs moves it 1.0-1.5 %, about as much as
+every blur radius grown by 15 %. The level is therefore kept per kind of content, keyed by the
 prediction's own band-pass RMS (:attr:`~.residual.ResidualReport.band_rms`: how much fine
 content the look had, which also sets how much the camera's noise adds), and a look is judged
 against the looks of like content only.
