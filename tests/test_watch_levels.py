@@ -73,7 +73,7 @@ def test_focus_change_after_cuts_is_still_detected(pictures):
     pc = sim.VirtualProCam("webcam_cubicle", projector_size=PROJ, camera_size=CAM)
     calib = sim.oracle_calibration(pc)
     a, b = pictures
-    w = play(pc, calib, [a] * 8 + [b] * 8 + [a] * 12, change_at=18)
+    w = play(pc, calib, [a] * 8 + [b] * 8 + [a] * 8, change_at=18)
     detects = [e for e in w.events if e.action == "detect"]
     assert [e.kind for e in detects] == ["focus"], w.events
     # within 2 s of the change (looks every 0.25 s)
