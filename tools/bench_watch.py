@@ -11,7 +11,9 @@ motion per plane from the simulator's ground truth. "report s" is the median of 
 ``cost`` (cubicle): per backend, the predictor's one-off build and the report's median time
 (after three warm-up calls; the device synchronised inside each call, which returns host
 numbers), wall-clock and CPU time (all of the process's threads, the OpenCL CPU device's
-included: on a machine shared with other jobs the wall clock also counts their time), the
+included: on a machine shared with other jobs the wall clock also counts their time), a whole
+look's CPU time (`Watcher.step` at a right model: the report and the watcher's reading of the
+shown frame), the
 watcher's share of a 30 fps frame period at 2 and 4 looks per second and at the schedule
 `play --watch` keeps on hardware while the set-up is right (one look per
 ``HARDWARE_LOOK_PERIOD`` s; report time x looks per second: the time per second, hence per
@@ -21,7 +23,13 @@ thread: the loop sleeps to each frame's deadline, and its lateness (wake-up dela
 deadline, median and 95th percentile) is measured with no watcher and with a thread
 reporting 2 and 4 times a second.
 
-    python tools/bench_watch.py [--table accuracy|cost|all] [preset ...]
+``levels`` (per preset, at ``--size``): what the focus judgement reads on the drift
+evaluation's clip (`rtdefocus eval --drift`), one compensated frame every half second of its
+8 s cycle on an unchanged set-up: the prediction's band-pass RMS (`band_rms`, the key of like
+content in `rtdefocus.watch.levels.BandLevels`), the band level (band ratio / gain), the gain
+and the added light.
+
+    python tools/bench_watch.py [--table accuracy|cost|levels|all] [--size WxH] [preset ...]
 
 Writes ``bench_results/watch-<git commit>.json`` (the cost table).
 """
@@ -42,7 +50,7 @@ from rtdefocus import sim
 from rtdefocus.cl.runtime import opencl_available
 from rtdefocus.cli.show import HARDWARE_LOOK_PERIOD
 from rtdefocus.planar import apply_h
-from rtdefocus.watch import ResidualPredictor, residual_report
+from rtdefocus.watch import ResidualPredictor, Watcher, residual_report
 
 ROOT = Path(__file__).resolve().parent.parent
 FPS = 30.0
@@ -110,6 +118,28 @@ def accuracy(presets) -> None:
                   flush=True)
 
 
+def levels(presets, size) -> None:
+    from rtdefocus.compensate import Compensator
+    from rtdefocus.study.eval_drift import drift_segments
+    from rtdefocus.study.eval_video import make_clip
+    from rtdefocus.watch.levels import band_level
+
+    clip = make_clip(size, drift_segments(FPS))
+    print("| preset | frame | segment | band_rms | band level | gain | ambient added |")
+    print("|---|---|---|---|---|---|---|")
+    for preset in presets:
+        pc = sim.VirtualProCam(preset, projector_size=size,
+                               camera_size=(int(size[0] * 1.6), int(size[1] * 1.6)))
+        calib = sim.oracle_calibration(pc)
+        comp = Compensator(calib)
+        for i in range(0, len(clip), int(FPS / 2)):
+            name, image = clip[i]
+            shown = comp.compensate(image)
+            r = residual_report(calib, shown, pc.capture(shown))
+            print(f"| {preset} | {i} | {name} | {r.band_rms:.4f} | {band_level(r):.4f} "
+                  f"| {r.gain:.4f} | {r.ambient_added:.4f} |", flush=True)
+
+
 def frame_loop_lateness(predictor, frame, cap, looks: float, seconds: float) -> np.ndarray:
     """Lateness (s) of a 30 fps loop on this thread while another reports ``looks``/s."""
     stop = threading.Event()
@@ -139,6 +169,7 @@ def frame_loop_lateness(predictor, frame, cap, looks: float, seconds: float) -> 
 
 def cost(preset: str, rounds: int = 7, seconds: float = 4.0) -> dict:
     pc, calib, frame = set_up(preset)
+    still = pc.capture(frame)                        # the unchanged set-up: a look that acts not
     pc.bump(projector_shift_px=3.0)                  # a report that has something to align
     cap = pc.capture(frame)
     backends = ["numpy"] + (["opencl"] if opencl_available()[0] else [])
@@ -171,6 +202,21 @@ def cost(preset: str, rounds: int = 7, seconds: float = 4.0) -> dict:
               f"| {med * quiet:.1%} ({med_cpu * quiet:.1%}) |", flush=True)
         if best is None or med < best[1]:
             best = (pred, med, backend)
+    # A whole look of a watcher at a right model: the report (its cached predictor: OpenCL
+    # when a device exists) and the watcher's own reading of the shown frame.
+    watcher = Watcher(calib, lambda f: still, threaded=False)
+    for _ in range(3):
+        watcher.step(frame, still, 0.0)
+    cpu = []
+    for _ in range(rounds):
+        c0 = time.process_time()
+        watcher.step(frame, still, 0.0)
+        cpu.append(time.process_time() - c0)
+    look = float(np.median(cpu))
+    out["look_cpu_s"], out["share_schedule_look_cpu"] = look, look * quiet
+    print(f"\nA whole look (`Watcher.step` at a right model: the report and the watcher's reading "
+          f"of the shown frame): {look * 1e3:.0f} ms CPU, {look * quiet:.1%} of a 30 fps period "
+          f"at `play --watch`'s hardware schedule.")
     pred, _, backend = best
     print(f"\n30 fps loop on the main thread, watcher thread on {backend} "
           f"({seconds:.0f} s per row):\n")
@@ -189,11 +235,14 @@ def cost(preset: str, rounds: int = 7, seconds: float = 4.0) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--table", choices=["accuracy", "cost", "all"], default="all")
+    ap.add_argument("--table", choices=["accuracy", "cost", "levels", "all"], default="all")
+    ap.add_argument("--size", default="240x180", help="projector size of the levels table")
     ap.add_argument("presets", nargs="*", default=["cubicle", "webcam_cubicle"])
     args = ap.parse_args()
     if args.table in ("accuracy", "all"):
         accuracy(args.presets)
+    if args.table in ("levels", "all"):
+        levels(args.presets, tuple(int(v) for v in args.size.lower().split("x")))
     if args.table in ("cost", "all"):
         print()
         out = cost(args.presets[0])

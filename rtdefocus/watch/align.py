@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import fft as sfft
 
-__all__ = ["PlaneWindow", "band_ratio", "coarse_shift", "downsample_mask", "plane_shift",
-           "watched_planes"]
+__all__ = ["PlaneWindow", "band_energies", "band_ratio", "coarse_shift", "downsample_mask",
+           "plane_shift", "watched_planes"]
 
 
 def watched_planes(plane: np.ndarray, n_planes: int, seen: np.ndarray,
@@ -90,22 +91,28 @@ def coarse_shift(a: np.ndarray, b: np.ndarray, m: np.ndarray,
     """
     h, w = a.shape
     win = np.outer(np.hanning(h), np.hanning(w)) * m if window is None else window
-    fa = np.fft.rfft2((a - a[m].mean()) * win)
-    fb = np.fft.rfft2((b - b[m].mean()) * win)
+    # Zero-padded to sizes the FFT factors well: a box side is often a prime (251 px), where
+    # the FFT costs several times more; the window takes both signals to 0 at the box's edge.
+    # In float32: half the float64 transforms' time, the same peak to 6 digits.
+    s = (sfft.next_fast_len(h, real=True), sfft.next_fast_len(w, real=True))
+    fa = sfft.rfft2(((a - a[m].mean()) * win).astype(np.float32), s=s)
+    fb = sfft.rfft2(((b - b[m].mean()) * win).astype(np.float32), s=s)
     cross = np.conj(fa) * fb
     mag = np.abs(cross)
-    corr = np.fft.irfft2(cross / (mag + 1e-3 * mag.max() + 1e-30), s=a.shape)
+    corr = sfft.irfft2(cross / (mag + np.float32(1e-3) * mag.max() + np.float32(1e-30)), s=s)
     py, px = np.unravel_index(int(np.argmax(corr)), corr.shape)
-    d = np.array([px - w if px > w / 2 else px, py - h if py > h / 2 else py], np.float64)
+    hh, ww = s
+    d = np.array([px - ww if px > ww / 2 else px, py - hh if py > hh / 2 else py], np.float64)
     return d, float(corr[py, px])
 
 
 def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow, iterations: int = 6,
-                start: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                start: np.ndarray | None = None, tol: float = 1e-3) -> tuple[np.ndarray, float]:
     """(dx, dy) such that ``obs(x) ≈ gain · pred(x − d) + offset`` inside the plane's window
     (grey (Hp, Wp) images), and the phase correlation peak of the whole-pixel start.
 
     ``start``: a shift to refine instead of the phase correlation's (the peak is then NaN).
+    ``tol``: the Gauss-Newton step (px) below which it stops.
     """
     m, flat = win.mask, win.flat
     a = np.ascontiguousarray(win.cut(pred), np.float32)
@@ -134,7 +141,7 @@ def plane_shift(pred: np.ndarray, obs: np.ndarray, win: PlaneWindow, iterations:
             break
         step = np.array([u, v]) / gain
         d += np.clip(step, -2.0, 2.0)
-        if np.abs(step).max() < 1e-3:
+        if np.abs(step).max() < tol:
             break
     return d, peak
 
@@ -147,8 +154,8 @@ def downsample_mask(mask: np.ndarray) -> np.ndarray:
     return inside[::2, ::2].astype(bool)
 
 
-def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
-    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``,
+def band_energies(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+    """Mean square of the difference of Gaussians (σ 1 and 2 px) of ``pred`` and of ``obs``,
     on the pixels of ``mask`` (a bool image, or the flat indices of its pixels)."""
     flat = np.flatnonzero(mask) if mask.dtype == bool else mask
 
@@ -159,5 +166,11 @@ def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
         b = b.reshape(-1).take(flat)
         return float(np.dot(b, b)) / max(b.size, 1)
 
-    e_pred = energy(pred)
-    return float(np.sqrt(energy(obs) / e_pred)) if e_pred > 0 else float("nan")
+    return energy(pred), energy(obs)
+
+
+def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
+    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``,
+    on the pixels of ``mask`` (a bool image, or the flat indices of its pixels)."""
+    e_pred, e_obs = band_energies(pred, obs, mask)
+    return float(np.sqrt(e_obs / e_pred)) if e_pred > 0 else float("nan")

@@ -9,16 +9,11 @@ from collections.abc import Callable
 import numpy as np
 
 from ..calib.file import Calibration
+from .levels import band_level
 from .mend import rescale_radii
 from .residual import ResidualReport
 
 __all__ = ["band_level", "fit_band_scale"]
-
-
-def band_level(r: ResidualReport) -> float:
-    """The band ratio with the light fit's gain taken out: a light mend moves the gain into
-    the albedo, which would otherwise move the ratio's level as much."""
-    return r.band_ratio / r.gain if r.gain > 0 else float("nan")
 
 
 def fit_band_scale(calib: Calibration, shown: np.ndarray, capture: np.ndarray, level: float,

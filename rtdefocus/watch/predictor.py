@@ -27,7 +27,7 @@ from ..calib.radiometry.camera_response import linearize
 from ..calib.radiometry.stage import projector_to_camera_maps
 from ..errors import InputError
 from ..reference.blur import blur_forward_filter2d, weight_maps
-from .align import PlaneWindow, band_ratio, coarse_shift, downsample_mask, plane_shift, watched_planes
+from .align import PlaneWindow, band_energies, coarse_shift, downsample_mask, plane_shift, watched_planes
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,8 @@ class ResidualReport:
     rms_before, rms_after : RMS of observed − predicted before, and after, the alignment and
         the light fit (camera-linear light).
     watched : number of projector pixels compared.
+    band_rms : the band-pass RMS of the (aligned) prediction on the watched pixels (camera
+        linear light): how much fine content the look had to read ``band_ratio`` on.
     """
 
     gain: float
@@ -67,6 +69,7 @@ class ResidualReport:
     rms_before: float
     rms_after: float
     watched: int
+    band_rms: float = float("nan")
 
 
 def default_margin(projector_size: tuple[int, int]) -> int:
@@ -160,7 +163,8 @@ class ResidualPredictor:
         resolution. The content on the wall is blurred, so a coarser level loses little of it
         and costs a quarter per level (``tools/bench_watch.py`` compares the shifts).
     refine : int >= 0
-        Full-resolution Gauss-Newton steps after the pyramid level (0: the level's shift).
+        Full-resolution Gauss-Newton steps after the pyramid level (0: the level's shift,
+        about 0.05 px further from the true motion on a projector bump, at 85 % of the cost).
     reuse : ResidualPredictor, optional
         A predictor of an earlier state of the calibration: its geometry part (maps, watched
         pixels) and its kernel field (on the device) are taken over where the calibration's
@@ -206,7 +210,8 @@ class ResidualPredictor:
         self._setup_light(calib)
 
     #: What :meth:`_setup_geometry` computes (kept by a predictor that ``reuse``s it).
-    _GEOMETRY = ("_maps", "seen", "masks", "windows", "coarse_windows", "watched", "_wflat")
+    _GEOMETRY = ("_maps", "seen", "masks", "windows", "coarse_windows", "watched", "_wflat",
+                 "_band_box", "_band_flat")
 
     def _setup_geometry(self, calib: Calibration) -> None:
         """Camera→projector maps, what the camera sees, the watched pixels and windows."""
@@ -226,11 +231,22 @@ class ResidualPredictor:
         self.coarse_windows = coarse
         self.watched = np.any(masks, axis=0) if masks else np.zeros((hp, wp), bool)
         self._wflat = np.flatnonzero(self.watched)
+        # The band-pass energy is read on the watched pixels' box widened by the DoG's reach
+        # (OpenCV's σ = 2 kernel: 8 px), the same values as on the whole frame.
+        if self._wflat.size:
+            ys, xs = np.nonzero(self.watched)
+            y0, y1 = max(0, ys.min() - 8), min(hp, ys.max() + 9)
+            x0, x1 = max(0, xs.min() - 8), min(wp, xs.max() + 9)
+        else:
+            y0, y1, x0, x1 = 0, hp, 0, wp
+        self._band_box = (slice(y0, y1), slice(x0, x1))
+        self._band_flat = np.flatnonzero(self.watched[self._band_box])
 
     def _setup_light(self, calib: Calibration) -> None:
         """Response tables, albedo and ambient maps as the report uses them."""
         wp, hp = calib.projector_size
         self._lut = np.ascontiguousarray(calib.lut, np.float32)
+        self._lut3 = [np.ascontiguousarray(t[None]) for t in self._lut]     # cv2.LUT's (1, 256)
         cam = calib.camera_lut
         # uint8 captures read the inverse response by table (np.interp at whole codes is the
         # table itself); other captures (averaged frames) go through linearize.
@@ -246,8 +262,9 @@ class ResidualPredictor:
         third = np.float32(1.0 / 3.0)
         self._alb3 = (None if self._albedo is None
                       else np.ascontiguousarray(self._albedo.transpose(2, 0, 1)) * third)
-        self._ia3 = (None if self._inv_albedo is None
-                     else np.ascontiguousarray(self._inv_albedo.transpose(2, 0, 1)) * third)
+        self._ia3 = None if self._inv_albedo is None else self._inv_albedo * third
+        self._third = np.full((1, 3), third, np.float32)        # cv2.transform: channel mean
+        self._one = np.ones((1, 3), np.float32)                 # cv2.transform: channel sum
         self._amb_g = None if self._ambient is None else self._ambient.mean(axis=2)
         # the ambient as it reads in the content (ambient / albedo, grey)
         self._amb_content_g = (None if self._ambient is None else
@@ -279,9 +296,10 @@ class ResidualPredictor:
         (3, Hp, Wp) float32 (the identity blur without kernels)."""
         frame = _check_frame(self.calib, frame)
         lin = np.empty((3, *frame.shape[:2]), np.float32)
-        # decode_lut's table look-up (no headroom), by plane: a third of its time
+        # decode_lut's table look-up (no headroom), by plane (cv2.LUT: a tenth of np.take's
+        # time on uint8 codes, the same values)
         for c, codes in enumerate(cv2.split(frame)):
-            np.take(self._lut[c], codes, out=lin[c])
+            cv2.LUT(codes, self._lut3[c], dst=lin[c])
         if self._blur is not None:
             with self._lock:
                 self._src.set(lin, queue=self._queue)
@@ -339,15 +357,10 @@ class ResidualPredictor:
         blurred_g *= np.float32(1.0 / 3.0)
         pred_g = self._light_g(blurred, blurred_g)
         obs, _ = self.observe(capture)
-        o = cv2.split(obs)
-        obs_g = o[0] + o[1]
-        obs_g += o[2]
-        obs_g *= np.float32(1.0 / 3.0)
+        obs_g = cv2.transform(obs, self._third)
         # The content alone, as the projector put it on the wall: room light off, / albedo.
         if self._ia3 is not None:
-            content_g = o[0] * self._ia3[0]
-            for c in (1, 2):
-                content_g += o[c] * self._ia3[c]
+            content_g = cv2.transform(cv2.multiply(obs, self._ia3), self._one)
         else:
             content_g = obs_g.copy()
         if self._amb_content_g is not None:
@@ -372,11 +385,15 @@ class ResidualPredictor:
         (gain, added), *_ = np.linalg.lstsq(A, [np.dot(a, y), np.dot(sh, y)], rcond=None)
         before = y - pred_g.reshape(-1).take(w)
         after = y - np.float32(gain) * a - np.float32(added) * sh
+        e_pred, e_obs = band_energies(aligned[self._band_box], obs_g[self._band_box],
+                                      self._band_flat)
         return ResidualReport(gain=float(gain), ambient_added=float(added), shifts_proj=shifts,
-                              confidence=conf, band_ratio=band_ratio(aligned, obs_g, w),
+                              confidence=conf,
+                              band_ratio=(float(np.sqrt(e_obs / e_pred)) if e_pred > 0
+                                          else float("nan")),
                               rms_before=float(np.sqrt(np.dot(before, before) / before.size)),
                               rms_after=float(np.sqrt(np.dot(after, after) / after.size)),
-                              watched=n)
+                              watched=n, band_rms=float(np.sqrt(e_pred)))
 
     def _shift(self, pyr: list, win: PlaneWindow, coarse: PlaneWindow | None
                ) -> tuple[np.ndarray, float]:
@@ -389,7 +406,8 @@ class ResidualPredictor:
         start, peak = coarse_shift(win.cut(fine_pred), np.asarray(win.cut(fine_obs), np.float64),
                                    win.mask, win.window)
         scale = 2.0 ** self.level
-        d, _ = plane_shift(pyr[-1][0], pyr[-1][1], coarse, start=start / scale)
+        # A hundredth of a level pixel: the full-resolution step that follows corrects more.
+        d, _ = plane_shift(pyr[-1][0], pyr[-1][1], coarse, start=start / scale, tol=0.01)
         d *= scale
         if self.refine:
             d, _ = plane_shift(fine_pred, fine_obs, win, iterations=self.refine, start=d)

@@ -8,10 +8,10 @@ the light fit and the band-pass energy, so a later kind is not judged while an e
 changing), with hysteresis per kind: a kind is *detected* when ``confirm`` successive looks
 exceed its high threshold, and *cleared* only by a look below its low threshold. Light and
 focus are judged against their levels while the model was right (a calibration is rarely
-exact in them). A look compares the camera frame with the very frame the projector showed
-when it was taken (the Player hands that frame over), so moving content and cuts are no
-change; a look judges only what its frame can show (a plain frame tells nothing of light or
-focus, see :class:`Thresholds`).
+exact in them; focus on content like the look's). A look compares the camera frame with the
+very frame the projector showed when it was taken (the Player hands that frame over), so
+moving content and cuts are no change; a look judges only what its frame can show (a plain
+frame tells nothing of light or focus, see :class:`Thresholds`).
 
 On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
 shows geometry only, never worse than no compensation) and a mend is estimated from the
@@ -51,14 +51,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from ..calib.file import Calibration
 from ..errors import InputError, RtDefocusError
-from ..reference.lut import decode_lut
 from .burst import BURSTS, Burst, BurstOptions, BurstRunner
-from .focus import band_level, fit_band_scale
+from .focus import fit_band_scale
+from .levels import BandLevels, band_level, content_informs
 from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_radii
 from .refit import content_warps, refit_geometry, which_moved
 from .residual import ResidualReport, residual_report
@@ -124,7 +123,8 @@ class Thresholds:
         phase-correlation peak is at least ``min_confidence``.
     gain : |gain / its level while trusted − 1| (exposure or albedo change).
     ambient : |added room light − its level while trusted| (mean camera linear light).
-    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain).
+    focus : |band ratio / its value while trusted − 1| (the ratio divided by the gain;
+        MEASURED in :mod:`~rtdefocus.watch.levels`).
     min_confidence, min_contrast, min_band : what a look must offer to say anything of a kind:
         geometry, a plane's phase-correlation peak (it falls with the frame's size: about
         0.08 at 240×180, 0.04 at 800×600 on smooth texture, under 0.01 on a plain frame);
@@ -132,6 +132,8 @@ class Thresholds:
         gain from added light); focus, its band-pass
         (difference of Gaussians, σ 1 and 2 px) RMS in linear light (below it the camera's
         noise sets the ratio). A kind a look says nothing of is neither suspected nor cleared.
+    band_match : focus is judged against the band level of looks of like content only (band
+        RMS within this factor, MEASURED in :mod:`~rtdefocus.watch.levels`).
     """
 
     geometry_px: tuple[float, float] = (0.6, 0.3)
@@ -141,6 +143,7 @@ class Thresholds:
     min_confidence: float = 0.02
     min_contrast: float = 0.03
     min_band: float = 0.008
+    band_match: float = 1.10
 
 
 class Watcher:
@@ -219,7 +222,7 @@ class Watcher:
         self._last_look = -math.inf
         self._suspect: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._measured: dict[str, list] = {k: [] for k in KINDS}
-        self._band_base: list[float] = []
+        self._band_base = BandLevels(self.th.band_match, self.band_looks)
         self._light_base: list[tuple[float, float]] = []
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -342,7 +345,8 @@ class Watcher:
         self.last_report = r
         if self._active.pop("lost", None) is not None:
             self._event(t, "lost", "cleared", {})
-        over, under, informative = self._classify(r, self._informative(shown))
+        frame_informs = self._informative(shown)
+        over, under, informative = self._classify(r, frame_informs)
         # Untrusted and too plain to align for too long: the geometry patterns say it.
         if self._bursts.plain_too_long(bool(self._active) and not informative["geometry"], t) \
                 and self._start_burst("geometry", t):
@@ -377,8 +381,8 @@ class Watcher:
             self._mend(todo, shown, capture, t)
         elif not self._active and not any(over.values()):
             # The levels of a model known right, each from looks that can tell it.
-            if informative["focus"] and math.isfinite(band_level(r)):
-                self._band_base = (self._band_base + [band_level(r)])[-16:]
+            if frame_informs["focus"]:
+                self._band_base.add(r)
             if informative["light"]:
                 self._light_base = (self._light_base + [(r.gain, r.ambient_added)])[-16:]
         self._update_trust()
@@ -402,10 +406,7 @@ class Watcher:
     def _informative(self, shown: np.ndarray) -> dict:
         """Per kind, whether the shown frame has the content to judge it (see
         :class:`Thresholds`)."""
-        lin = decode_lut(np.asarray(shown), self.calib.lut).mean(axis=0)
-        band = cv2.GaussianBlur(lin, (0, 0), 1.0) - cv2.GaussianBlur(lin, (0, 0), 2.0)
-        return {"geometry": True, "light": float(lin.std()) > self.th.min_contrast,
-                "focus": float(np.sqrt(np.mean(band ** 2))) > self.th.min_band}
+        return content_informs(shown, self.calib.lut, self.th.min_contrast, self.th.min_band)
 
     def _classify(self, r: ResidualReport, informative: dict) -> tuple[dict, dict, dict]:
         """Per kind: over its high threshold, under its low one (neither where the look has
@@ -417,10 +418,10 @@ class Watcher:
         g_ref, a_ref = self._light_ref()
         gain = abs(r.gain / g_ref - 1.0)
         amb = abs(r.ambient_added - a_ref)
-        base = (float(np.median(self._band_base)) if len(self._band_base) >= self.band_looks
-                else None)
-        band = band_level(r)
+        base, band = self._band_base.level(r), band_level(r)
         focus = abs(band / base - 1.0) if base and math.isfinite(band) else 0.0
+        if base is None and self._band_base.known():
+            informative = dict(informative, focus=False)    # levels known, not on such content
         psf = self.calib.has_psf
         # Light is judged only against its measured levels: a calibration rarely explains
         # the room's light exactly, and that is no change.
@@ -497,7 +498,7 @@ class Watcher:
             # The band level belongs to the old kernels and to the content it was read on (a
             # compensated frame's spectrum): it is measured again with the new kernels, and
             # until then focus is not judged.
-            self._band_base = []
+            self._band_base.clear()
         self.calib = new
         self._event(t, kind, "mend", detail, patterns)
         with self._lock:
@@ -557,9 +558,9 @@ class Watcher:
             new, left = refit_geometry(new, shown, capture, detail["moved"])
             detail["refit_left_px"] = round(left, 4)
             return new, detail
-        if not self._band_base:
+        base = self._band_base.level(reports[-1])
+        if base is None:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
-        base = float(np.median(self._band_base))
         scale = fit_band_scale(self.calib, shown, capture, base, self.report)
         detail = {"kernel_scale": round(scale, 4)}
         if not 0.5 < scale < 2.0:
@@ -567,7 +568,7 @@ class Watcher:
         if abs(scale - 1.0) < 0.06:
             # The kernels explain this content: its band level is one of a right model (the
             # ratio moves a few per cent with the content's spectrum), measured again from here.
-            self._band_base = [b for b in map(band_level, reports) if math.isfinite(b)]
+            self._band_base.measure_again(reports)
             return None, detail
         return rescale_radii(calib, scale), detail
 
