@@ -97,8 +97,16 @@ def blur_error(calib, oracle):
     return float(np.sqrt(np.mean((predict_proj(calib, frame) - predict_proj(oracle, frame)) ** 2)))
 
 
-#: Camera px a geometry mend may leave on the test set-ups (1.5x the largest measured).
-GEOMETRY_LEFT_PX = {"projector": 0.04, "camera": 0.02}
+#: MEASURED 2026-12-03 (`.venv/bin/python tools/measure_gains.py --sections watcher`, which
+#: runs this file's `mend_figure`; deterministic): camera px a geometry mend leaves, the light
+#: mend's ambient error as a share of the stale calibration's, and the focus mend's radius
+#: scale. Bounds are 1.5x these.
+MEASURED = {
+    ("cubicle", "projector"): 0.0185, ("cubicle", "camera"): 0.0059,
+    ("webcam_cubicle", "projector"): 0.0253, ("webcam_cubicle", "camera"): 0.0117,
+    ("cubicle", "light"): 0.0135, ("webcam_cubicle", "light"): 0.0274,
+    ("webcam_cubicle", "focus"): 1.1597,
+}
 
 CHANGES = {
     "light": ("set_light", None),
@@ -106,6 +114,26 @@ CHANGES = {
     "camera": ("bump", {"camera_shift_px": 4.0}),
     "focus": ("refocus", {"scale": 1.15}),
 }
+
+
+def mended(pc, calib, name):
+    """The watcher after 3 s of content with the change ``name`` at CHANGE_AT, and the oracle."""
+    method, params = CHANGES[name]
+    if name == "light":
+        params = {"ambient": pc.ambient + 0.1}         # 10 % of full white more room light
+    return play(pc, calib, 3.0, (method, params)), sim.oracle_calibration(pc)
+
+
+def mend_figure(preset, name):
+    """The figure MEASURED holds for a change: camera px left, light error share, or scale."""
+    pc, calib = setup(preset)
+    w, oracle = mended(pc, calib, name)
+    if name == "light":
+        return abs(float(w.calib.ambient_proj.mean() - oracle.ambient_proj.mean())) / abs(
+            float(calib.ambient_proj.mean() - oracle.ambient_proj.mean()))
+    if name == "focus":
+        return next(e.detail["kernel_scale"] for e in w.events if e.action == "mend")
+    return cam_error(w.calib, oracle)
 
 
 @pytest.mark.parametrize("preset,name", [("cubicle", "light"), ("webcam_cubicle", "light"),
@@ -116,12 +144,8 @@ CHANGES = {
                          ids=lambda v: v)
 def test_each_change_is_detected_and_mended_from_the_content(preset, name):
     pc, calib = setup(preset)
-    method, params = CHANGES[name]
-    if name == "light":
-        params = {"ambient": pc.ambient + 0.1}         # 10 % of full white more room light
     before = digest(calib)
-    w = play(pc, calib, 3.0, (method, params))
-    oracle = sim.oracle_calibration(pc)
+    w, oracle = mended(pc, calib, name)
     kind = {"light": "light", "projector": "geometry", "camera": "geometry", "focus": "focus"}[name]
     detects = [e for e in w.events if e.action == "detect"]
     assert [e.kind for e in detects] == [kind], w.events
@@ -134,7 +158,7 @@ def test_each_change_is_detected_and_mended_from_the_content(preset, name):
     if name == "light":
         err = abs(float(w.calib.ambient_proj.mean() - oracle.ambient_proj.mean()))
         stale = abs(float(calib.ambient_proj.mean() - oracle.ambient_proj.mean()))
-        assert err < 0.1 * stale, (err, stale)
+        assert err < 1.5 * MEASURED[preset, name] * stale, (err, stale)
         r = w.last_report
         # the mended model reads the room as the calibration did while it was right
         g_ref, a_ref = w._light_ref()
@@ -143,15 +167,17 @@ def test_each_change_is_detected_and_mended_from_the_content(preset, name):
     elif kind == "geometry":
         assert mends[0].detail["moved"] == name
         assert cam_error(calib, oracle) > 3.0
-        # 1.5x the error measured on these set-ups (0.018-0.025 px projector, 0.006-0.012
-        # px camera): the content alignment leaves a few hundredths of a camera pixel
-        assert cam_error(w.calib, oracle) < GEOMETRY_LEFT_PX[name]
+        # the content alignment leaves a few hundredths of a camera pixel
+        assert cam_error(w.calib, oracle) < 1.5 * MEASURED[preset, name]
         assert np.abs(w.last_report.shifts_proj).max() < Thresholds().geometry_px[1]
     else:
-        assert 1.0 < mends[0].detail["kernel_scale"] < 1.2
+        scale_error = abs(MEASURED[preset, name] - 1.15)
+        assert abs(mends[0].detail["kernel_scale"] - 1.15) < 1.5 * scale_error
+        # measured 0.533 of the stale calibration's blur error
         assert blur_error(w.calib, oracle) < 0.6 * blur_error(calib, oracle)
-        # The mended kernels are near the best any rescale of the old ones reaches (the
-        # radius grid of the truth's kernels does not zoom exactly: that best lies near 1.1).
+        # The mended kernels are near the best any zoom of the old ones reaches (the radius
+        # grid of the truth's kernels does not zoom exactly: that best lies near 1.1);
+        # measured 1.31x that best.
         best = min(blur_error(rescale_kernels(calib, s), oracle) for s in (1.05, 1.1, 1.15))
         assert blur_error(w.calib, oracle) < 1.5 * best
 
@@ -169,7 +195,7 @@ def test_light_off_in_the_calibration_is_no_change_and_one_change_is_one_detecti
     # the mend kept the calibration's own bias: albedo still 0.9 of the oracle's
     oracle = sim.oracle_calibration(pc)
     ratio = float(np.median(w.calib.albedo_proj / oracle.albedo_proj))
-    assert abs(ratio - 0.9) < 0.03, ratio
+    assert abs(ratio - 0.9) < 0.002, ratio      # measured 0.9012: 1.5x its 0.0012 off
 
 
 @pytest.mark.parametrize("preset", ["cubicle", "webcam_cubicle"])
@@ -407,5 +433,6 @@ def test_content_refit_leaves_an_unchanged_set_up_where_it_was(moved):
     pc, calib = setup("cubicle")
     frame = content(10)
     new, left = refit_geometry(calib, frame, pc.capture(frame), moved)
-    assert left < 0.05
-    assert cam_error(new, calib) < 0.02
+    # measured: left 0.0016 (projector) / 0.0175 (camera) px, moved 0.0140 / 0.0155 px
+    assert left < {"projector": 0.0024, "camera": 0.027}[moved]
+    assert cam_error(new, calib) < 0.024

@@ -21,6 +21,7 @@ Sections (``--sections``, comma-separated):
 ``field``       tests/test_psf.py: the kernel field's largest step between neighbouring pixels.
 ``walls``       tests/test_geometry_walls.py: the nearly-flat walls' model, fold, checkerboard.
 ``watch``       tests/test_watch_residual.py: the residual report's errors per change.
+``watcher``     tests/test_watcher.py: what each mend from the content leaves against the oracle.
 ``render``      tests/test_render.py: the chunked render off the serial one, the codec's loss.
 ``dots``        tests/test_psf_external.py: another rig's dots against the PSF stage's own.
 ``clipping``    tests/test_clipping.py: kernels and albedo of cameras that clip.
@@ -425,6 +426,14 @@ def section_dense() -> None:
                              "guessed": homography_rms(guessed, pc.truth)})
 
 
+def section_watcher() -> None:
+    """tests/test_watcher.py: each change mended from the content, against the oracle."""
+    import test_watcher as tw
+
+    for preset, name in tw.MEASURED:
+        print(f"watcher {preset} {name}: {tw.mend_figure(preset, name):.4f}", flush=True)
+
+
 def section_lenscli() -> None:
     """tests/test_calibrate_walls_cli.py: webcam_sagging's checkerboard with the lens of a
     flat-wall calibration and with its own guess; the far-wall warning's box on gap."""
@@ -441,7 +450,7 @@ SECTIONS = {"compensate": section_compensate, "eval": section_eval, "demo": sect
             "surface": section_surface, "walls": section_walls, "watch": section_watch,
             "render": section_render, "dots": section_dots, "clipping": section_clipping,
             "correspondences": section_correspondences, "dense": section_dense,
-            "lenscli": section_lenscli}
+            "lenscli": section_lenscli, "watcher": section_watcher}
 
 
 def main(argv=None) -> int:
