@@ -107,6 +107,9 @@ def test_watch_row_mends_a_light_change(tmp_path):
     (ev,) = result["events"]
     assert ev["detected_s"] is not None and ev["detected_s"] <= 1.0
     assert ev["detected_as"] == "light"
+    # MEASURED 2026-12-03 on this tiny set-up (10 fps, looks every 0.25 s): detected 1.0 s,
+    # back within 0.5 dB 1.4 s after the change (deterministic); the bounds are the issue's
+    # targets, 1.0x and 1.43x of those figures
     assert ev["recovered_s"] is not None and ev["recovered_s"] <= 2.0
     assert ev["worst_vs_geometry_db"] >= -0.5
     assert ev["pattern_frames"] == 0

@@ -66,7 +66,8 @@ def test_a_delayed_look_is_compared_with_the_frame_on_the_wall_then():
     assert w.looks >= 4
     assert [e for e in w.events if e.action == "detect"] == []
     shifts = np.abs(w.last_report.shifts_proj)
-    assert np.nanmax(shifts) < 0.3
+    # MEASURED 2026-12-03: 0.0030 projector px (deterministic; the same on three runs); 1.5x
+    assert np.nanmax(shifts) < 0.0045
     # the same show compared with the frame offered when the look started: a false move
     w = watch_pan(pc, calib, paired=False)
     detects = [e for e in w.events if e.action == "detect"]

@@ -130,7 +130,8 @@ def test_residual_report_rebuilds_its_predictor_when_the_calibration_changes(
         calib.ambient_proj = calib_ambient
         calib.H_cam_from_proj = calib_h
     assert before.ambient_added > 0.02
-    assert abs(after.ambient_added) < 0.2 * before.ambient_added
+    # MEASURED 2026-12-03: 0.083 of the change is left (deterministic); 1.5x
+    assert abs(after.ambient_added) < 0.124 * before.ambient_added
 
 
 def test_a_predictor_of_another_calibration_is_refused(calib_and_frame, captures,
