@@ -28,8 +28,9 @@ from .oracle import oracle_calibration
 from .patterns import PATTERNS, test_pattern
 from .scene import PRESETS, Scene
 from .timeline import Event, Timeline
+from .timing import capture_seconds
 from .truth import GroundTruth
-from .virtual_procam import SHADING_MEAN, WEBCAM, VirtualProCam, capture_seconds
+from .virtual_procam import SHADING_MEAN, WEBCAM, VirtualProCam
 
 __all__ = [
     "Event", "GroundTruth", "PATTERNS", "PRESETS", "RADIUS_STEP", "SHADING_MEAN", "Scene", "SetupChanges",

@@ -16,6 +16,7 @@ through per-pixel maps found by ray casting once at construction.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import math
@@ -31,7 +32,6 @@ from ..planar import canonical_line, undistort_points
 from ..procam import check_pattern
 from .changes import SetupChanges
 from .optics import BlurPlan
-from .patterns import test_pattern
 from .scene import (
     PRESETS,
     ROOM_KINDS,
@@ -540,13 +540,25 @@ class VirtualProCam(SetupChanges):
         m = self._margin
         return self._blur.apply(lin, m)[m:m + hp, m:m + wp]
 
-    def capture(self, pattern: np.ndarray, sharp: bool = False) -> np.ndarray:
+    def skip_capture(self):
+        """Move the noise past one capture unrendered; returns its noise for ``capture(...,
+        noise=)`` to render it later bit for bit (None: no noise). Needs exposure_drift 0."""
+        if self.exposure_drift != 0.0:
+            raise InputError("skip_capture() needs exposure_drift 0 (the gain moves per capture)")
+        if self.noise <= 0:
+            return None
+        saved = copy.deepcopy(self._rng)
+        self._rng.standard_normal((self.camera_size[1], self.camera_size[0], 3), dtype=np.float32)
+        return saved
+
+    def capture(self, pattern: np.ndarray, sharp: bool = False, noise=None) -> np.ndarray:
         """Show ``pattern`` on the projector and return the camera frame.
 
         Parameters
         ----------
         pattern : (Hp, Wp, 3) uint8 RGB projector image (a (Hp, Wp) grey one is expanded).
         sharp : render the ideal in-focus display: no blur and no noise, all else equal.
+        noise : a skipped capture's noise (:meth:`skip_capture`); default the camera's own.
 
         Returns
         -------
@@ -565,7 +577,7 @@ class VirtualProCam(SetupChanges):
                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         cam += self.ambient
         cam *= self._cam_albedo                       # Lambertian walls, exposure folded in
-        if not sharp:
+        if not sharp and noise is None:
             if self.exposure_drift != 0.0 and self._captures > 0:
                 step = self.exposure_drift * (1.0 + 0.1 * float(self._drift_rng.standard_normal()))
                 self._gain *= math.exp(step)
@@ -573,7 +585,8 @@ class VirtualProCam(SetupChanges):
             if self._gain != 1.0:
                 cam *= np.float32(self._gain)
         if not sharp and self.noise > 0:
-            cam += self._rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
+            rng = self._rng if noise is None else noise
+            cam += rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
         np.clip(cam, 0.0, 1.0, out=cam)
         if self.camera_response == "srgb":
             cam = linear_to_srgb(cam)
@@ -585,16 +598,3 @@ class VirtualProCam(SetupChanges):
         return (f"VirtualProCam({self.preset!r}, projector {self.projector_size[0]}x"
                 f"{self.projector_size[1]}, camera {self.camera_size[0]}x{self.camera_size[1]})")
 
-
-def capture_seconds(procam: VirtualProCam | None = None, repeats: int = 5,
-                    sharp: bool = False) -> float:
-    """Median wall time (s) of one ``capture`` of the checker pattern (after one warm-up)."""
-    procam = procam or VirtualProCam("cubicle")
-    pat = test_pattern("checker", procam.projector_size)
-    procam.capture(pat, sharp=sharp)
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        procam.capture(pat, sharp=sharp)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))

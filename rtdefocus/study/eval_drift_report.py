@@ -87,7 +87,7 @@ def plot_drift(result: dict, path) -> Path:
     path = Path(path)
     fig = new_figure("the drift plot", (13, 5.5), path, ", or pass plot=False / --no-plot")
     ax = fig.subplots()
-    frames = result["frames"]
+    frames = [f for f in result["frames"] if f["psnr"]]     # the frames scored
     t = np.array([f["t"] for f in frames])
     for row in result["settings"]["rows"]:
         y = [f["psnr"][row] for f in frames]
