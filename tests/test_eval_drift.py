@@ -161,7 +161,7 @@ def test_sparse_scoring_gives_each_scored_frame_the_full_runs_figures(full_and_s
     want = scored_frames(20, TINY["fps"], [0.5], every=3, full_s=0.5)
     assert [bool(r["psnr"]) for r in sparse["records"]] == want.tolist()
     assert not want.all() and want[5:10].all() and not want[10:].all()
-    for a, b in zip(full["records"], sparse["records"]):
+    for a, b in zip(full["records"], sparse["records"], strict=True):
         if b["psnr"]:
             assert a["psnr"] == b["psnr"]
         assert (a["trusted"], a["watch_geometry_px"]) == (b["trusted"], b["watch_geometry_px"])
@@ -185,7 +185,7 @@ def test_drift_show_views_skipped_or_evicted_are_the_same_views():
     at_once, later = DriftShow(procam, rect, 1, "numpy"), DriftShow(twin, rect, 1, "numpy")
     first = [at_once.view(f).copy() for f in frames]
     later.skip_view(frames[0])
-    assert all(np.array_equal(later.view(f), v) for f, v in zip(frames[1:], first[1:]))
+    assert all(np.array_equal(later.view(f), v) for f, v in zip(frames[1:], first[1:], strict=True))
     assert np.array_equal(later.view(frames[0]), first[0])          # skipped, rendered now
     assert np.array_equal(at_once.view(frames[0]), first[0])        # evicted, rendered again
     assert not np.array_equal(first[0], procam.capture(frames[0]))  # the noise moved on

@@ -154,8 +154,8 @@ def add_eval(sub):
     d.add_argument("--score-every", type=int, default=1, metavar="N",
                    help="score every N-th frame, and every frame for --full-rate-s after each "
                    "event (default 1: all; 6 makes an 800x600 run affordable)")
-    d.add_argument("--full-rate-s", type=float, default=3.0, metavar="S",
-                   help="seconds after each event scored at full rate (default 3)")
+    d.add_argument("--full-rate-s", type=float, default=2.0, metavar="S",
+                   help="seconds after each event scored at full rate (default 2)")
     p.set_defaults(func=cmd_eval)
 
 

@@ -33,7 +33,7 @@ def frame_key(a: np.ndarray) -> bytes:
     return hashlib.blake2b(np.ascontiguousarray(a).data, digest_size=16).digest()
 
 
-def scored_frames(n: int, fps: float, event_times, every: int = 1, full_s: float = 3.0) -> np.ndarray:
+def scored_frames(n: int, fps: float, event_times, every: int = 1, full_s: float = 2.0) -> np.ndarray:
     """Which of ``n`` frames (frame ``i`` at ``i / fps``) a play scores: every frame from each
     event until ``full_s`` seconds after it (detection, mend and recovery, at full rate), and
     every ``every``-th frame elsewhere (``every`` 1: all). Returns an (n,) bool mask."""

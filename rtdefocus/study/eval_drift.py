@@ -29,6 +29,11 @@ of the oracle's warp into ``R0`` at the current truth, scored inside ``R0`` in t
 ideal camera pixels (camera-view PSNR, as ``eval --video``). A stale geometry therefore shows
 as misplaced content, a stale blur or light model as a worse compensation.
 
+Scoring every frame renders up to five camera views per frame, the largest cost at 800×600;
+with ``score_every`` a play scores every frame for ``full_rate_s`` after each event and every
+``score_every``-th frame elsewhere, and still shows, solves and watches every frame: a scored
+frame's figures are those of a play scoring all (:mod:`~rtdefocus.study.drift_show`).
+
 A second run plays the unchanged set-up for ``false_alarm_s`` seconds of the same clip (its
 cuts included) through the watch row alone and counts the watcher's detections. The report is
 :mod:`rtdefocus.study.eval_drift_report`.
@@ -66,7 +71,7 @@ ITERATIONS = 4
 #: Seconds between two events of the default timeline (each has this long to recover).
 SPACING_S = 8.0
 #: Seconds after each event scored at full rate when a play scores sparsely (``score_every``).
-FULL_RATE_S = 3.0
+FULL_RATE_S = 2.0
 #: "Back within" margin against the oracle and "worse than geometry only" margin (dB).
 WITHIN_DB = 0.5
 
