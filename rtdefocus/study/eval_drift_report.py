@@ -41,7 +41,10 @@ def drift_markdown(result: dict) -> str:
         "rectangle of the original calibration (the picture stays where it was). "
         + ("Each event on a fresh set-up of its own (2 s of show, the event, "
            f"{s['duration_s'] / max(1, len(s['scheduled'])) - 2:g} s to recover), the plays laid "
-           "end to end." if s.get("separate") else "One set-up, changed event after event."),
+           "end to end." if s.get("separate") else "One set-up, changed event after event.")
+        + (f" Scored: every frame for {s['full_rate_s']:g} s after each event, every "
+           f"{s['score_every']}-th frame elsewhere (means and *back* read the scored frames)."
+           if s.get("score_every", 1) > 1 else ""),
         "",
         "| row | mean PSNR (dB) |", "|---|---|",
     ]
