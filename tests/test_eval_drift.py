@@ -189,3 +189,13 @@ def test_drift_show_views_skipped_or_evicted_are_the_same_views():
     assert np.array_equal(later.view(frames[0]), first[0])          # skipped, rendered now
     assert np.array_equal(at_once.view(frames[0]), first[0])        # evicted, rendered again
     assert not np.array_equal(first[0], procam.capture(frames[0]))  # the noise moved on
+
+
+def test_held_mean_weights_each_scored_frame_by_the_frames_it_stands_for():
+    """Scored frames 0, 3 and 4 of five: frame 0 stands for frames 0-2; all scored: the mean."""
+    from rtdefocus.study.eval_drift import held_mean
+
+    recs = [{"psnr": {} if v is None else {"a": v}} for v in (1.0, None, None, 4.0, 5.0)]
+    assert held_mean(recs, lambda r: r["psnr"]["a"]) == pytest.approx((3 * 1.0 + 4.0 + 5.0) / 5)
+    full = [{"psnr": {"a": v}} for v in (1.0, 2.0, 4.0)]
+    assert held_mean(full, lambda r: r["psnr"]["a"]) == np.mean([1.0, 2.0, 4.0])

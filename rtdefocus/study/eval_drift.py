@@ -62,7 +62,7 @@ from .machine import machine_info
 log = logging.getLogger(__name__)
 
 __all__ = ["ROWS", "ITERATIONS", "SPACING_S", "WITHIN_DB", "default_events", "drift_segments",
-           "event_figures", "run_drift_eval", "run_false_alarm"]
+           "event_figures", "held_mean", "run_drift_eval", "run_false_alarm"]
 
 #: The rows of the drift evaluation, in the report's order.
 ROWS = ("none", "watch", "oracle", "geometry")
@@ -311,8 +311,8 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
         if "oracle" in rows:
             for row in ("none", "watch"):
                 if row in rows:
-                    fig[f"{row}_vs_oracle_db"] = float(np.mean(
-                        [r["psnr"][row] - r["psnr"]["oracle"] for r in scored]))
+                    fig[f"{row}_vs_oracle_db"] = held_mean(
+                        span, lambda r, row=row: r["psnr"][row] - r["psnr"]["oracle"])
         if "watch" in rows:
             wev = [e for e in play["watch_events"] if t0 <= _t(e) < t1]
             det = [e for e in _detections(wev)]
@@ -337,6 +337,20 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
                 fig["worst_vs_geometry_db"] = float(min(before)) if before else None
         out.append(fig)
     return out
+
+
+def held_mean(records, value) -> float:
+    """Mean of ``value(record)`` over the scored records (non-empty ``psnr``), each standing for
+    the frames up to the next scored one (the last to the end of ``records``): the mean over
+    every frame when every frame is scored, its sample-and-hold estimate when not."""
+    idx = [k for k, r in enumerate(records) if r["psnr"]]
+    if not idx:
+        return float("nan")
+    vals = [value(records[k]) for k in idx]
+    weights = np.diff(idx + [len(records)])
+    if np.all(weights == 1):
+        return float(np.mean(vals))
+    return float(np.average(vals, weights=weights))
 
 
 def event_label(ev) -> str:
@@ -482,8 +496,7 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
                      "within_db": WITHIN_DB, "separate": bool(separate),
                      "score_every": int(score_every), "full_rate_s": float(full_rate_s)},
         "machine": machine_info(),
-        "rows": {row: float(np.mean([r["psnr"][row] for r in recs if r["psnr"]]))
-                 for row in play["rows"]},
+        "rows": {row: held_mean(recs, lambda r, row=row: r["psnr"][row]) for row in play["rows"]},
         "events": play["figures"] if separate else event_figures(play),
         "updates": play["updates"],
         "watch_events": play["watch_events"],
