@@ -43,7 +43,8 @@ def drift_markdown(result: dict) -> str:
            f"{s['duration_s'] / max(1, len(s['scheduled'])) - 2:g} s to recover), the plays laid "
            "end to end." if s.get("separate") else "One set-up, changed event after event.")
         + (f" Scored: every frame for {s['full_rate_s']:g} s after each event, every "
-           f"{s['score_every']}-th frame elsewhere (means hold each scored frame until the next; *back* reads the scored frames)."
+           f"{s['score_every']}-th frame elsewhere (means hold each scored frame until the "
+           "next; *back* reads the scored frames)."
            if s.get("score_every", 1) > 1 else ""),
         "",
         "| row | mean PSNR (dB) |", "|---|---|",
