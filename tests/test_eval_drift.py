@@ -142,3 +142,63 @@ def test_separate_plays_start_each_event_on_a_fresh_setup():
     bumped, refocused = play["figures"]
     assert bumped["none_vs_oracle_db"] < -3.0          # a moved picture
     assert refocused["none_vs_oracle_db"] > -3.0       # a blur change only, no bump left over
+
+
+@pytest.fixture(scope="module")
+def full_and_sparse():
+    """The same 2 s bumped play with every row, scored on every frame and on every third frame
+    outside 0.5 s after the bump."""
+    from rtdefocus.study.eval_drift import play_drift
+
+    plays = [play_drift("cubicle", TINY["size"], TINY["fps"], 2.0, [BUMP], score_every=k,
+                        full_rate_s=0.5) for k in (1, 3)]
+    return plays
+
+
+def test_sparse_scoring_gives_each_scored_frame_the_full_runs_figures(full_and_sparse):
+    """Frames not scored still go through the camera's noise: every scored frame's PSNR, and
+    every look and update of the watcher, is the one of the play that scores all."""
+    from rtdefocus.study.drift_show import scored_frames
+
+    full, sparse = full_and_sparse
+    want = scored_frames(20, TINY["fps"], [0.5], every=3, full_s=0.5)
+    assert [bool(r["psnr"]) for r in sparse["records"]] == want.tolist()
+    assert not want.all() and want[5:10].all() and not want[10:].all()
+    for a, b in zip(full["records"], sparse["records"], strict=True):
+        if b["psnr"]:
+            assert a["psnr"] == b["psnr"]
+        assert (a["trusted"], a["watch_geometry_px"]) == (b["trusted"], b["watch_geometry_px"])
+    assert full["watch_events"] == sparse["watch_events"] and full["updates"] == sparse["updates"]
+    assert len(full["updates"]) >= 1            # the watcher mended the bump in both
+
+
+def test_drift_show_views_skipped_or_evicted_are_the_same_views():
+    """A view skipped and rendered later, or rendered again after more than RECENT_VIEWS other
+    frames, equals the view rendered at once."""
+    import copy
+
+    from rtdefocus import sim
+    from rtdefocus.study.drift_show import RECENT_VIEWS, DriftShow
+
+    procam = sim.VirtualProCam("cubicle", projector_size=TINY["size"], camera_size=(256, 192))
+    twin = copy.deepcopy(procam)
+    rng = np.random.default_rng(1)
+    frames = [rng.integers(0, 256, (120, 160, 3), dtype=np.uint8) for _ in range(RECENT_VIEWS + 2)]
+    rect = (40, 30, 160, 120)
+    at_once, later = DriftShow(procam, rect, 1, "numpy"), DriftShow(twin, rect, 1, "numpy")
+    first = [at_once.view(f).copy() for f in frames]
+    later.skip_view(frames[0])
+    assert all(np.array_equal(later.view(f), v) for f, v in zip(frames[1:], first[1:], strict=True))
+    assert np.array_equal(later.view(frames[0]), first[0])          # skipped, rendered now
+    assert np.array_equal(at_once.view(frames[0]), first[0])        # evicted, rendered again
+    assert not np.array_equal(first[0], procam.capture(frames[0]))  # the noise moved on
+
+
+def test_held_mean_weights_each_scored_frame_by_the_frames_it_stands_for():
+    """Scored frames 0, 3 and 4 of five: frame 0 stands for frames 0-2; all scored: the mean."""
+    from rtdefocus.study.eval_drift import held_mean
+
+    recs = [{"psnr": {} if v is None else {"a": v}} for v in (1.0, None, None, 4.0, 5.0)]
+    assert held_mean(recs, lambda r: r["psnr"]["a"]) == pytest.approx((3 * 1.0 + 4.0 + 5.0) / 5)
+    full = [{"psnr": {"a": v}} for v in (1.0, 2.0, 4.0)]
+    assert held_mean(full, lambda r: r["psnr"]["a"]) == np.mean([1.0, 2.0, 4.0])

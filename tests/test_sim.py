@@ -479,3 +479,17 @@ def test_cli_simulate_writes_png(tmp_path):
     assert img is not None and img.shape == (960, 1280, 3)
     assert img.max() > 150 and np.median(img) < 60   # a bright checker on a dark surround
     assert cli.main(["-q", "simulate", "--scene", "nowhere", "-o", str(out)]) == 1
+
+
+def test_skip_capture_keeps_the_noise_of_every_capture():
+    """A capture skipped and rendered later with its noise is bit for bit the capture at its
+    turn, and the captures after it are unchanged."""
+    import copy
+
+    pc = sim.VirtualProCam("cubicle", projector_size=(160, 120), camera_size=(256, 192))
+    twin = copy.deepcopy(pc)
+    a, b = (sim.test_pattern(n, pc.projector_size) for n in ("checker", "dots"))
+    skipped = pc.skip_capture()
+    after = pc.capture(b)
+    assert np.array_equal(pc.capture(a, noise=skipped), twin.capture(a))
+    assert np.array_equal(after, twin.capture(b))

@@ -151,6 +151,11 @@ def add_eval(sub):
                    "event")
     d.add_argument("--duration", type=float, metavar="S",
                    help="seconds of show (default: the last event + 8 s, 34 s)")
+    d.add_argument("--score-every", type=int, default=1, metavar="N",
+                   help="score every N-th frame, and every frame for --full-rate-s after each "
+                   "event (default 1: all; 6 makes an 800x600 run affordable)")
+    d.add_argument("--full-rate-s", type=float, default=2.0, metavar="S",
+                   help="seconds after each event scored at full rate (default 2)")
     p.set_defaults(func=cmd_eval)
 
 
@@ -210,6 +215,7 @@ def cmd_eval_drift(args) -> int:
                                 duration_s=args.duration, separate=args.separate,
                                 false_alarm_s=args.false_alarm_s,
                                 false_alarm_size=args.false_alarm_size, seed=args.seed,
+                                score_every=args.score_every, full_rate_s=args.full_rate_s,
                                 plot=not args.no_plot, step=progress.step)
     return _print_result(result)
 

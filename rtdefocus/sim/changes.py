@@ -10,6 +10,7 @@ re-calibration would find. The walls never move; nothing changes until a method 
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -173,3 +174,15 @@ class SetupChanges:
         if scale != 1.0:
             self._rebuild(change, projector=True, camera=False)
         self._log_change("refocus", scale=scale)
+
+    def skip_capture(self):
+        """Move the noise past one capture unrendered (a capture the caller does not need);
+        returns its noise for ``capture(..., noise=)`` to render it later bit for bit (None: no
+        noise). Needs exposure_drift 0."""
+        if self.exposure_drift != 0.0:
+            raise InputError("skip_capture() needs exposure_drift 0 (the gain moves per capture)")
+        if self.noise <= 0:
+            return None
+        saved = copy.deepcopy(self._rng)
+        self._rng.standard_normal((self.camera_size[1], self.camera_size[0], 3), dtype=np.float32)
+        return saved

@@ -540,13 +540,14 @@ class VirtualProCam(SetupChanges):
         m = self._margin
         return self._blur.apply(lin, m)[m:m + hp, m:m + wp]
 
-    def capture(self, pattern: np.ndarray, sharp: bool = False) -> np.ndarray:
+    def capture(self, pattern: np.ndarray, sharp: bool = False, noise=None) -> np.ndarray:
         """Show ``pattern`` on the projector and return the camera frame.
 
         Parameters
         ----------
         pattern : (Hp, Wp, 3) uint8 RGB projector image (a (Hp, Wp) grey one is expanded).
         sharp : render the ideal in-focus display: no blur and no noise, all else equal.
+        noise : a skipped capture's noise (:meth:`skip_capture`); default the camera's own.
 
         Returns
         -------
@@ -571,7 +572,7 @@ class VirtualProCam(SetupChanges):
             cam *= self._cam_albedo                   # Lambertian walls, exposure folded in
             if not sharp:
                 last.put(self, pattern, cam)
-        if not sharp:
+        if not sharp and noise is None:
             if self.exposure_drift != 0.0 and self._captures > 0:
                 step = self.exposure_drift * (1.0 + 0.1 * float(self._drift_rng.standard_normal()))
                 self._gain *= math.exp(step)
@@ -579,7 +580,8 @@ class VirtualProCam(SetupChanges):
             if self._gain != 1.0:
                 cam *= np.float32(self._gain)
         if not sharp and self.noise > 0:
-            cam += self._rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
+            rng = self._rng if noise is None else noise
+            cam += rng.standard_normal(cam.shape, dtype=np.float32) * np.float32(self.noise)
         np.clip(cam, 0.0, 1.0, out=cam)
         if self.camera_response == "srgb":
             cam = linear_to_srgb(cam)

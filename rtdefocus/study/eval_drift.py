@@ -30,6 +30,11 @@ of the oracle's warp into ``R0`` at the current truth, scored inside ``R0`` in t
 ideal camera pixels (camera-view PSNR, as ``eval --video``). A stale geometry therefore shows
 as misplaced content, a stale blur or light model as a worse compensation.
 
+Scoring every frame renders up to five camera views per frame, the largest cost at 800×600;
+with ``score_every`` a play scores every frame for ``full_rate_s`` after each event and every
+``score_every``-th frame elsewhere, and still shows, solves and watches every frame: a scored
+frame's figures are those of a play scoring all (:mod:`~rtdefocus.study.drift_show`).
+
 A second run plays the unchanged set-up for ``false_alarm_s`` seconds of the same clip (its
 cuts included) through the watch row alone and counts the watcher's detections. The report is
 :mod:`rtdefocus.study.eval_drift_report`.
@@ -37,8 +42,8 @@ cuts included) through the watch row alone and counts the watcher's detections. 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
-import hashlib
 import logging
 import time
 from pathlib import Path
@@ -46,21 +51,19 @@ from pathlib import Path
 import numpy as np
 
 from .. import sim
-from ..compensate import Compensator
 from ..errors import InputError
-from ..gl.warp import warp_image
 from ..sim import Timeline, oracle_calibration
 from ..watch import Watcher
 from ..watch import camera_view as watch_look
+from .drift_show import DriftShow, scored_frames
 from .eval_video import Segment, make_clip
 from .evalreport import write_report
 from .machine import machine_info
-from .scores import camera_view, psnr
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ROWS", "ITERATIONS", "SPACING_S", "WITHIN_DB", "default_events", "drift_segments",
-           "event_figures", "run_drift_eval", "run_false_alarm"]
+           "event_figures", "held_mean", "run_drift_eval", "run_false_alarm"]
 
 #: The rows of the drift evaluation, in the report's order.
 ROWS = ("none", "watch", "oracle", "geometry")
@@ -68,6 +71,8 @@ ROWS = ("none", "watch", "oracle", "geometry")
 ITERATIONS = 4
 #: Seconds between two events of the default timeline (each has this long to recover).
 SPACING_S = 8.0
+#: Seconds after each event scored at full rate when a play scores sparsely (``score_every``).
+FULL_RATE_S = 2.0
 #: "Back within" margin against the oracle and "worse than geometry only" margin (dB).
 WITHIN_DB = 0.5
 
@@ -91,10 +96,6 @@ def drift_segments(fps: float) -> tuple[Segment, ...]:
     return (Segment("still", "still", n(1)), Segment("pan", "pan", n(3), 60.0 / fps),
             Segment("cut", "cut", n(2)), Segment("zoom", "zoom", n(1), 0.15 / fps),
             Segment("fade", "fade", n(1)))
-
-
-def _key(a: np.ndarray) -> bytes:
-    return hashlib.blake2b(np.ascontiguousarray(a).data, digest_size=16).digest()
 
 
 class _ShowClock:
@@ -122,58 +123,6 @@ def _as_dict(ev) -> dict:
     return dict(vars(ev))
 
 
-class _Show:
-    """One frame-stepped play: compensators per calibration (each runs once per frame, so rows
-    sharing a calibration share its warm start), warps and captures memoised per frame."""
-
-    def __init__(self, procam, rect, size, iterations, backend):
-        self.procam, self.rect = procam, rect
-        x, y, w, h = (int(v) for v in rect)
-        self.crop = np.s_[max(0, y):max(0, y + h), max(0, x):max(0, x + w)]
-        self.size, self.iterations, self.backend = size, iterations, backend
-        self.comps: dict[int, tuple] = {}
-        self.views: dict = {}           # (sharp, frame key) -> view; cleared when the truth changes
-        self.truth = oracle_calibration(procam)
-
-    def changed(self) -> None:
-        """The set-up changed: new truth, captures no longer valid."""
-        self.truth = oracle_calibration(self.procam)
-        self.views.clear()
-
-    def start_frame(self) -> None:
-        self._warps, self._comped = {}, {}
-
-    def warp(self, calib, image) -> np.ndarray:
-        k = id(calib)
-        if k not in self._warps:
-            self._warps[k] = warp_image(calib, image, rect=self.rect)
-        return self._warps[k]
-
-    def compensate(self, calib, image) -> np.ndarray:
-        k = id(calib)
-        if k not in self._comped:
-            if k not in self.comps:
-                self.comps[k] = (calib, Compensator(calib, backend=self.backend))
-            self._comped[k] = self.comps[k][1].compensate_warped(
-                self.warp(calib, image), iterations=self.iterations, warm_start=True)
-        return self._comped[k]
-
-    def keep_only(self, calibs) -> None:
-        """Drop the compensators of calibrations no row uses any more."""
-        live = {id(c) for c in calibs}
-        self.comps = {k: v for k, v in self.comps.items() if k in live}
-
-    def view(self, frame, sharp=False) -> np.ndarray:
-        key = (sharp, _key(frame))
-        if key not in self.views:
-            self.views[key] = camera_view(self.procam, self.truth, frame, sharp=sharp)
-        return self.views[key]
-
-    def score(self, frame, reference) -> float:
-        # Inside the display rectangle (as rect_mask, by slicing).
-        return psnr(self.view(frame)[self.crop], reference[self.crop])
-
-
 def _make_procam(preset, size, camera_size, seed):
     size = tuple(int(v) for v in size)
     camera_size = tuple(camera_size or (round(size[0] * 1.6), round(size[1] * 1.6)))
@@ -194,12 +143,15 @@ def _check(fps, duration_s, rows):
 def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                duration_s: float | None = None, events=None, rows=ROWS, *,
                camera_size=None, iterations: int = ITERATIONS, backend: str = "auto",
-               seed: int = 0, watcher_options: dict | None = None, step=None) -> dict:
+               seed: int = 0, watcher_options: dict | None = None, score_every: int = 1,
+               full_rate_s: float = FULL_RATE_S, step=None, _start=None) -> dict:
     """The frame-stepped play behind :func:`run_drift_eval` (no files): per-frame PSNR of every
-    row, the events applied, the watcher's own events and updates. Arguments as there."""
+    row, the events applied, the watcher's own events and updates. Arguments as there; a frame
+    not scored (``score_every``) has an empty ``psnr``."""
     say = step or (lambda msg: None)
     rows = tuple(rows)
-    procam = _make_procam(preset, size, camera_size, seed)
+    # _start: (fresh procam, clip) made by play_separately once for all its plays.
+    procam, clip = _start or (_make_procam(preset, size, camera_size, seed), None)
     events = default_events(procam) if events is None else list(events)
     timeline = Timeline(events)
     if duration_s is None:
@@ -209,9 +161,10 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
     original = oracle_calibration(procam)
     wp, hp = procam.projector_size
     rect = original.display_rect((wp, hp))
-    show = _Show(procam, rect, (wp, hp), iterations, backend)
-    clip = make_clip((wp, hp), drift_segments(fps))
+    show = DriftShow(procam, rect, iterations, backend)
+    clip = clip or make_clip((wp, hp), drift_segments(fps))
     n = int(round(duration_s * fps))
+    scored = scored_frames(n, fps, [e.t for e in timeline.events], score_every, full_rate_s)
     clock = _ShowClock()
     watcher = _new_watcher(original, procam, clock, watcher_options) if "watch" in rows else None
     oracle = watch_calib = original
@@ -233,7 +186,6 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                 updates.append(_update_info(upd, t, i))
         show.start_frame()
         seg, image = clip[i % len(clip)]
-        reference = show.view(show.warp(oracle, image), sharp=True)
         # a burst in progress: the watch row shows its pattern frame instead of the content
         pattern = watcher.pattern() if watcher is not None else None
         frames = {}
@@ -249,8 +201,13 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             else:
                 frames[row] = (show.compensate(watch_calib, image) if watcher.trusted
                                else show.warp(watch_calib, image))
-        rec = {"frame": i, "t": t, "segment": seg,
-               "psnr": {row: show.score(frames[row], reference) for row in rows}}
+        rec = {"frame": i, "t": t, "segment": seg, "psnr": {}}
+        if scored[i]:
+            reference = show.view(show.warp(oracle, image), sharp=True)
+            rec["psnr"] = {row: show.score(frames[row], reference) for row in rows}
+        else:
+            for row in rows:
+                show.skip_view(frames[row])
         if watcher is not None:
             rec["trusted"] = bool(watcher.trusted)
             rec["pattern"] = pattern is not None
@@ -258,7 +215,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             watcher.offer(frames["watch"], image)
         records.append(rec)
         show.keep_only((original, oracle, watch_calib))
-        if i % max(1, int(fps)) == 0:
+        if i % max(1, int(fps)) == 0 and rec["psnr"]:
             say(f"  {t:6.2f} s: " + ", ".join(f"{r} {rec['psnr'][r]:.2f}" for r in rows) + " dB")
     return {"preset": preset, "size": (wp, hp), "camera_size": tuple(procam.camera_size),
             "fps": float(fps), "duration_s": float(duration_s), "rows": rows, "rect": rect,
@@ -294,15 +251,19 @@ def play_separately(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
     laid end to end on one time axis (play ``k`` starts at ``k * (lead_s + span_s)``), so the
     result reads as :func:`play_drift`'s; ``figures`` holds each event's own
     :func:`event_figures`, undisturbed by what an earlier event left unmended."""
+    # One fresh set-up and clip for every play: a copy of a set-up never captured with is a
+    # fresh one (its noise starts where a new one's does).
+    fresh = _make_procam(preset, size, options.get("camera_size"), options.get("seed", 0))
+    clip = make_clip(fresh.projector_size, drift_segments(fps))
     if events is None:
-        events = default_events(_make_procam(preset, size, options.get("camera_size"),
-                                             options.get("seed", 0)))
+        events = default_events(fresh)
     scheduled = Timeline(events).events
     span = lead_s + span_s
     out: dict = {"records": [], "events": [], "updates": [], "watch_events": [], "figures": [],
                  "scheduled": []}
     for k, ev in enumerate(scheduled):
-        p = play_drift(preset, size, fps, span, [(lead_s, ev.kind, ev.params)], rows, **options)
+        p = play_drift(preset, size, fps, span, [(lead_s, ev.kind, ev.params)], rows, **options,
+                       _start=(copy.deepcopy(fresh), clip))
         off, first = k * span, len(out["records"])
 
         def moved(items, off=off):
@@ -352,11 +313,12 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
         t1 = evs[k + 1]["t"] if k + 1 < len(evs) else t_end
         span = [r for r in recs if t0 <= r["t"] < t1]
         fig = {"t": t0, "kind": ev["kind"], "params": ev["params"], "label": event_label(ev)}
+        scored = [r for r in span if r["psnr"]]
         if "oracle" in rows:
             for row in ("none", "watch"):
                 if row in rows:
-                    fig[f"{row}_vs_oracle_db"] = float(np.mean(
-                        [r["psnr"][row] - r["psnr"]["oracle"] for r in span]))
+                    fig[f"{row}_vs_oracle_db"] = held_mean(
+                        span, lambda r, row=row: r["psnr"][row] - r["psnr"]["oracle"])
         if "watch" in rows:
             wev = [e for e in play["watch_events"] if t0 <= _t(e) < t1]
             det = [e for e in _detections(wev)]
@@ -374,17 +336,31 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
             if span and "watch_geometry_px" in span[-1]:
                 fig["geometry_error_px"] = span[-1]["watch_geometry_px"]
             if "oracle" in rows:
-                ok = [r["psnr"]["watch"] >= r["psnr"]["oracle"] - within_db for r in span]
-                first = next((j for j in range(len(span)) if all(ok[j:])), None)
-                fig["recovered_s"] = span[first]["t"] - t0 if first is not None else None
+                ok = [r["psnr"]["watch"] >= r["psnr"]["oracle"] - within_db for r in scored]
+                first = next((j for j in range(len(scored)) if all(ok[j:])), None)
+                fig["recovered_s"] = scored[first]["t"] - t0 if first is not None else None
             if "geometry" in rows:
                 mend = t0 + fig["mended_s"] if ups else t1
                 # (a burst's pattern frames are no picture: counted above, not compared)
-                before = [r["psnr"]["watch"] - r["psnr"]["geometry"] for r in span
+                before = [r["psnr"]["watch"] - r["psnr"]["geometry"] for r in scored
                           if r["t"] < mend and not r.get("pattern")]
                 fig["worst_vs_geometry_db"] = float(min(before)) if before else None
         out.append(fig)
     return out
+
+
+def held_mean(records, value) -> float:
+    """Mean of ``value(record)`` over the scored records (non-empty ``psnr``), each standing for
+    the frames up to the next scored one (the last to the end of ``records``): the mean over
+    every frame when every frame is scored, its sample-and-hold estimate when not."""
+    idx = [k for k, r in enumerate(records) if r["psnr"]]
+    if not idx:
+        return float("nan")
+    vals = [value(records[k]) for k in idx]
+    weights = np.diff(idx + [len(records)])
+    if np.all(weights == 1):
+        return float(np.mean(vals))
+    return float(np.average(vals, weights=weights))
 
 
 def event_label(ev) -> str:
@@ -424,7 +400,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     calib = oracle_calibration(procam)
     wp, hp = procam.projector_size
     rect = calib.display_rect((wp, hp))
-    show = _Show(procam, rect, (wp, hp), iterations, backend)
+    show = DriftShow(procam, rect, iterations, backend)
     clip = make_clip((wp, hp), drift_segments(fps))
     clock = _ShowClock()
     watcher = _new_watcher(calib, procam, clock, watcher_options)
@@ -466,7 +442,8 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
                    events=None, rows=ROWS, camera_size=None, iterations: int = ITERATIONS,
                    separate: bool = False, false_alarm_s: float = 120.0,
                    false_alarm_size=None, backend: str = "auto", seed: int = 0,
-                   watcher_options: dict | None = None, plot: bool = True, step=None) -> dict:
+                   watcher_options: dict | None = None, score_every: int = 1,
+                   full_rate_s: float = FULL_RATE_S, plot: bool = True, step=None) -> dict:
     """Play the clip through a timeline of set-up changes and write ``drift.md``,
     ``drift.json`` and ``drift.png``.
 
@@ -489,6 +466,12 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
     backend : Compensator backend.
     seed : simulator noise seed.
     watcher_options : extra keyword arguments of the Watcher.
+    score_every : score every frame from each event until ``full_rate_s`` after it, and every
+        ``score_every``-th frame elsewhere (1: every frame). A frame not scored is still shown,
+        solved and watched, and every figure of a scored frame is the one of a play scoring
+        all (:mod:`~rtdefocus.study.drift_show`); means and "stays within" read the scored
+        frames only.
+    full_rate_s : seconds after each event scored at full rate.
     plot : write ``drift.png`` (needs matplotlib, ``rtdefocus[demo]``).
     step : callable(message), optional progress lines.
 
@@ -503,8 +486,12 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
     t_start = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if int(score_every) < 1 or not full_rate_s >= 0:
+        raise InputError(f"score_every must be >= 1 and full_rate_s >= 0; got {score_every!r}, "
+                         f"{full_rate_s!r}")
     options = {"camera_size": camera_size, "iterations": iterations, "backend": backend,
-               "seed": seed, "watcher_options": watcher_options, "step": step}
+               "seed": seed, "watcher_options": watcher_options, "step": step,
+               "score_every": int(score_every), "full_rate_s": float(full_rate_s)}
     if separate:
         play = play_separately(preset, size, fps, events, rows, **options)
     else:
@@ -520,9 +507,10 @@ def run_drift_eval(out_dir: str | Path = "drift_out", *, preset: str = "cubicle"
                      "fps": play["fps"], "duration_s": play["duration_s"], "rows": play["rows"],
                      "iterations": iterations, "backend": play["backend"], "seed": seed,
                      "display_rect": play["rect"], "scheduled": play["scheduled"],
-                     "within_db": WITHIN_DB, "separate": bool(separate)},
+                     "within_db": WITHIN_DB, "separate": bool(separate),
+                     "score_every": int(score_every), "full_rate_s": float(full_rate_s)},
         "machine": machine_info(),
-        "rows": {row: float(np.mean([r["psnr"][row] for r in recs])) for row in play["rows"]},
+        "rows": {row: held_mean(recs, lambda r, row=row: r["psnr"][row]) for row in play["rows"]},
         "events": play["figures"] if separate else event_figures(play),
         "updates": play["updates"],
         "watch_events": play["watch_events"],

@@ -41,7 +41,11 @@ def drift_markdown(result: dict) -> str:
         "rectangle of the original calibration (the picture stays where it was). "
         + ("Each event on a fresh set-up of its own (2 s of show, the event, "
            f"{s['duration_s'] / max(1, len(s['scheduled'])) - 2:g} s to recover), the plays laid "
-           "end to end." if s.get("separate") else "One set-up, changed event after event."),
+           "end to end." if s.get("separate") else "One set-up, changed event after event.")
+        + (f" Scored: every frame for {s['full_rate_s']:g} s after each event, every "
+           f"{s['score_every']}-th frame elsewhere (means hold each scored frame until the "
+           "next; *back* reads the scored frames)."
+           if s.get("score_every", 1) > 1 else ""),
         "",
         "| row | mean PSNR (dB) |", "|---|---|",
     ]
@@ -87,7 +91,7 @@ def plot_drift(result: dict, path) -> Path:
     path = Path(path)
     fig = new_figure("the drift plot", (13, 5.5), path, ", or pass plot=False / --no-plot")
     ax = fig.subplots()
-    frames = result["frames"]
+    frames = [f for f in result["frames"] if f["psnr"]]     # the frames scored
     t = np.array([f["t"] for f in frames])
     for row in result["settings"]["rows"]:
         y = [f["psnr"][row] for f in frames]
