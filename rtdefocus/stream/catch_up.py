@@ -23,7 +23,8 @@ log = logging.getLogger(__name__)
 
 #: Catch-up: a moving frame is compensated only when its expected cost times a safety margin
 #: ends before the frame after next arrives (two periods after it arrived); otherwise it is
-#: shown with geometry only. The margin is the measured spread of the device's costs for frames
+#: shown with geometry only. A repeated picture's refinement must end before the next frame
+#: arrives (one period), so a new picture after a still starts with its whole window. The margin is the measured spread of the device's costs for frames
 #: of the same kind (moving, or a repeated picture's refinement): the CATCH_UP_QUANTILE of the
 #: last compensated frames' measured / expected costs (:meth:`IterationBudget.cost_ratio`) with
 #: CATCH_UP_HEADROOM on top, at least CATCH_UP_MARGIN_MIN, so a steady device runs close to its
@@ -140,7 +141,11 @@ class CatchUp:
         if rest is None:
             return "compensate", iterations
         margin = self.margin_for(repeat)
-        left = 2.0 * b.period - (time.perf_counter() - frame.t_read) - margin * rest
+        # A repeated picture's refinement ends before the next frame arrives, not the one
+        # after: should that next frame be a new picture, it starts on time with its whole
+        # window (a refinement that spilled into it would drop it).
+        window = (1.0 if repeat else 2.0) * b.period
+        left = window - (time.perf_counter() - frame.t_read) - margin * rest
         per_it = margin * b.per_iteration
         fit = int(left / per_it) if per_it > 0 else iterations
         if fit >= b.minimum:

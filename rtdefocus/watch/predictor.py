@@ -188,6 +188,13 @@ class ResidualPredictor:
         self.level, self.refine = int(level), int(refine)
         if self.level < 0 or self.refine < 0:
             raise InputError(f"level and refine must be >= 0; got {level} and {refine}")
+        # The phase correlation's peak (the watcher's confidence) falls as the frame grows:
+        # the blur widens with it, and whitening spreads the peak over more noisy high
+        # frequencies. It is read where the frame is nearest 400 px wide (the size its
+        # threshold was measured at), at most the pyramid level.
+        wide = calib.projector_size[0]
+        self.peak_level = (self.level if self.level and wide >= 400 * 2 ** (self.level - 0.5)
+                           else 0)
         self.keys = calibration_keys(calib)
         same = [reuse is not None and reuse.keys[i] == self.keys[i] for i in range(2)]
         if same[0] and (reuse.margin, reuse.level) == (self.margin, self.level):
@@ -403,11 +410,17 @@ class ResidualPredictor:
         fine_pred, fine_obs = pyr[0]
         if coarse is None or self.level == 0:
             return plane_shift(fine_pred, fine_obs, win)
-        start, peak = coarse_shift(win.cut(fine_pred), np.asarray(win.cut(fine_obs), np.float64),
-                                   win.mask, win.window)
         scale = 2.0 ** self.level
+        if self.peak_level:
+            (lp, lo), w = pyr[-1], coarse
+            start, peak = coarse_shift(w.cut(lp), np.asarray(w.cut(lo), np.float64), w.mask,
+                                       w.window)
+        else:
+            start, peak = coarse_shift(win.cut(fine_pred), np.asarray(win.cut(fine_obs),
+                                       np.float64), win.mask, win.window)
+            start = start / scale
         # A hundredth of a level pixel: the full-resolution step that follows corrects more.
-        d, _ = plane_shift(pyr[-1][0], pyr[-1][1], coarse, start=start / scale, tol=0.01)
+        d, _ = plane_shift(pyr[-1][0], pyr[-1][1], coarse, start=start, tol=0.01)
         d *= scale
         if self.refine:
             d, _ = plane_shift(fine_pred, fine_obs, win, iterations=self.refine, start=d)
