@@ -184,3 +184,25 @@ def test_a_geometry_only_calibration_predicts_the_frame_itself(calib_and_frame, 
     full = numpy_predictor.report(frame, captures["projector-bump"])
     assert np.abs(full.shifts_proj).max() > 2.0
     np.testing.assert_allclose(r.shifts_proj, full.shifts_proj, atol=0.3)
+
+
+@pytest.mark.slow
+def test_confidence_does_not_fall_with_the_frame_size():
+    """The phase correlation's peak (the watcher's confidence in a plane's shift) is read at
+    the pyramid level nearest 400 px wide: the drift clip's photograph on an 800x600 set-up
+    gives the peaks it gives at 400x300, over the watcher's ``min_confidence``. Read at full
+    resolution they fell to a third there (0.007-0.008), and a bump was never judged."""
+    from rtdefocus.study.eval_drift import drift_segments
+    from rtdefocus.study.eval_video import make_clip
+    from rtdefocus.watch import Thresholds
+
+    peaks = {}
+    for size in ((400, 300), (800, 600)):
+        pc = sim.VirtualProCam("cubicle", projector_size=size,
+                               camera_size=(round(size[0] * 1.6), round(size[1] * 1.6)), seed=0)
+        frame = make_clip(size, drift_segments(30.0))[45][1]          # the slow pan
+        pred = ResidualPredictor(sim.oracle_calibration(pc))
+        peaks[size] = pred.report(frame, pc.capture(frame)).confidence
+    # MEASURED 2026-12-03: 0.0278 / 0.0244 at 800x600, 0.0284 / 0.0250 at 400x300 (per plane)
+    assert np.all(peaks[800, 600] >= 0.85 * peaks[400, 300]), peaks
+    assert peaks[800, 600].max() >= Thresholds().min_confidence
