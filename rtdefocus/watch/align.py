@@ -3,8 +3,8 @@
 Per plane, the watched pixels are those the camera sees, ``margin`` projector px inside the
 frame and the plane (content moved across a fold or the frame's edge would read as a change).
 The content's shift on a plane is found by phase correlation (whole pixels), then refined by
-Gauss-Newton on the shift, a gain and an offset (sub-pixel). The focus indicator is the
-band-pass (difference of Gaussians) energy of the observation over that of the prediction.
+Gauss-Newton on the shift, a gain and an offset (sub-pixel). The focus indicator reads the
+band-pass (difference of Gaussians) energies of the observation and of the prediction.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy import fft as sfft
 
-__all__ = ["PlaneWindow", "band_energies", "band_ratio", "coarse_shift", "downsample_mask",
+__all__ = ["PlaneWindow", "band_energies", "coarse_shift", "downsample_mask",
            "plane_shift", "watched_planes"]
 
 
@@ -167,10 +167,3 @@ def band_energies(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> tuple[
         return float(np.dot(b, b)) / max(b.size, 1)
 
     return energy(pred), energy(obs)
-
-
-def band_ratio(pred: np.ndarray, obs: np.ndarray, mask: np.ndarray) -> float:
-    """RMS of the difference of Gaussians (σ 1 and 2 px) of ``obs`` over that of ``pred``,
-    on the pixels of ``mask`` (a bool image, or the flat indices of its pixels)."""
-    e_pred, e_obs = band_energies(pred, obs, mask)
-    return float(np.sqrt(e_obs / e_pred)) if e_pred > 0 else float("nan")

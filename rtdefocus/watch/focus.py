@@ -13,7 +13,7 @@ from .levels import band_level
 from .mend import rescale_radii
 from .residual import ResidualReport
 
-__all__ = ["band_level", "fit_band_scale"]
+__all__ = ["fit_band_scale"]
 
 
 def fit_band_scale(calib: Calibration, shown: np.ndarray, capture: np.ndarray, level: float,
