@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 #: ends before the frame after next arrives (two periods after it arrived); otherwise it is
 #: shown with geometry only. A repeated picture's refinement must end before the next frame
 #: arrives (one period), so a new picture after a still starts with its whole window. The
-#: margin is the measured spread of the device's costs for frames of the same kind (moving, or a repeated picture's refinement): the CATCH_UP_QUANTILE of the
+#: margin is the measured spread of the device's costs for frames of the same kind (moving,
+#: or a repeated picture's refinement): the CATCH_UP_QUANTILE of the
 #: last compensated frames' measured / expected costs (:meth:`IterationBudget.cost_ratio`) with
 #: CATCH_UP_HEADROOM on top, at least CATCH_UP_MARGIN_MIN, so a steady device runs close to its
 #: deadline and a jittery one keeps the room its spikes need (one rare spike does not move a
