@@ -300,8 +300,9 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
     """Per applied event: detection delay (s), recovery time (s: from the event to the first
     frame from which the watch row stays within ``within_db`` of the oracle until the next
     event), pattern frames shown, the worst frame of the watch row against geometry only
-    between the event and its mend (the first update after it), the none and watch rows'
-    mean PSNR against the oracle's over the event's span, and the watch row's geometry error
+    between the event and its mend (the first update after it) and between the first look that
+    saw it (``seen_s``: a geometry suspicion or a detection) and its mend, the none and watch
+    rows' mean PSNR against the oracle's over the event's span, and the watch row's geometry error
     at the span's end (:func:`geometry_error_px`), the detections in the span and the seconds
     of it the watch row showed with geometry only."""
     recs, evs = play["records"], play["events"]
@@ -325,6 +326,10 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
             fig["detected_s"] = _t(det[0]) - t0 if det else None
             fig["detected_as"] = str(det[0].get("kind")) if det else None
             fig["detections"] = len(det)
+            # the first look that put the show on geometry only (a geometry suspicion or a
+            # detection): the frames up to it went out before any look could see the change
+            seen = [e for e in wev if str(e.get("action")) in ("suspect", "detect")]
+            fig["seen_s"] = _t(seen[0]) - t0 if seen else None
             fig["geometry_only_s"] = sum(not r.get("trusted", True) for r in span) / play["fps"]
             # the frames the watch row showed as patterns (else what the watcher's events say)
             fig["pattern_frames"] = (sum(bool(r["pattern"]) for r in span) if span and "pattern"
@@ -345,6 +350,9 @@ def event_figures(play: dict, within_db: float = WITHIN_DB) -> list[dict]:
                 before = [r["psnr"]["watch"] - r["psnr"]["geometry"] for r in scored
                           if r["t"] < mend and not r.get("pattern")]
                 fig["worst_vs_geometry_db"] = float(min(before)) if before else None
+                after = [r["psnr"]["watch"] - r["psnr"]["geometry"] for r in scored
+                         if seen and t0 + fig["seen_s"] < r["t"] < mend and not r.get("pattern")]
+                fig["worst_after_seen_db"] = float(min(after)) if after else None
         out.append(fig)
     return out
 
@@ -393,7 +401,8 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
                     step=None) -> dict:
     """An unchanged set-up playing the clip (pans, stills, its cuts) for ``seconds`` of show
     through the watch row alone; returns the watcher's detections and updates (each a false
-    alarm), its events and how many frames went out with geometry only."""
+    alarm), its geometry suspicions (each looked at again, geometry only until then), its
+    events and how many frames went out with geometry only."""
     say = step or (lambda msg: None)
     _check(fps, seconds, ("watch",))
     procam = _make_procam(preset, size, camera_size, seed)
@@ -431,6 +440,7 @@ def run_false_alarm(preset: str = "cubicle", size=(400, 300), fps: float = 30.0,
     return {"preset": preset, "size": (wp, hp), "fps": float(fps), "seconds": float(seconds),
             "frames": n, "detections": len(_detections(events)), "updates": len(updates),
             "retracted": int(watcher.false_alarms),
+            "suspicions": sum(e["action"] == "suspect" for e in events),
             "geometry_frames": geometry_frames, "pattern_frames": pattern_frames,
             "watch_events": events,
             "update_list": updates}

@@ -55,22 +55,28 @@ def drift_markdown(result: dict) -> str:
         lines += ["", f"Per event (times in seconds of show after the event; *back*: from then "
                   f"on within {w:g} dB of the oracle until the next event; *worst vs geometry*: "
                   f"the watch row's worst frame against geometry only before its first update; "
+                  "*seen*: the first look that distrusted the model (a geometry suspicion or a "
+                  "detection); *after seen*: the worst frame against geometry only from then "
+                  "to the first update; "
                   "*none / watch vs oracle*: mean over the event's span; *geometry left*: the "
                   "watch row's largest camera-px error against the truth at the span's end; "
                   "*geometry-only*: seconds of the span the watch row showed geometry only):", "",
-                  "| event | at (s) | detected (s) | as | mended (s) | back (s) | pattern frames "
-                  "| worst vs geometry (dB) | none vs oracle (dB) | watch vs oracle (dB) "
+                  "| event | at (s) | seen (s) | detected (s) | as | mended (s) | back (s) "
+                  "| pattern frames | worst vs geometry (dB) | after seen (dB) "
+                  "| none vs oracle (dB) | watch vs oracle (dB) "
                   "| geometry left (px) | detections | geometry-only (s) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for e in evs:
             back = e.get("recovered_s")
             back_txt = ("never" if back is None and "recovered_s" in e else _f(back))
             det = e.get("detected_s")
             det_txt = "not detected" if det is None and "detected_s" in e else _f(det)
             lines.append(
-                f"| {e['label']} | {e['t']:g} | {det_txt} | {e.get('detected_as') or '–'} | "
+                f"| {e['label']} | {e['t']:g} | {_f(e.get('seen_s'))} | {det_txt} | "
+                f"{e.get('detected_as') or '–'} | "
                 f"{_f(e.get('mended_s'))} | {back_txt} | {e.get('pattern_frames', '–')} | "
                 f"{_f(e.get('worst_vs_geometry_db'), '+.2f')} | "
+                f"{_f(e.get('worst_after_seen_db'), '+.2f')} | "
                 f"{_f(e.get('none_vs_oracle_db'), '+.2f')} | "
                 f"{_f(e.get('watch_vs_oracle_db'), '+.2f')} | "
                 f"{_f(e.get('geometry_error_px'))} | {e.get('detections', '–')} | "
@@ -80,7 +86,8 @@ def drift_markdown(result: dict) -> str:
         lines += ["", f"Unchanged set-up, {fa['seconds']:g} s of the clip (cuts included) at "
                   f"{fa['size'][0]}x{fa['size'][1]}, {fa['fps']:g} fps: **{fa['detections']} "
                   f"detection(s)**, {fa['retracted']} of them retracted by the watcher, {fa['updates']} "
-                  f"update(s), {fa['geometry_frames']} frame(s) shown with geometry only."]
+                  f"update(s), {fa.get('suspicions', 0)} geometry suspicion(s), "
+                  f"{fa['geometry_frames']} frame(s) shown with geometry only."]
     lines += ["", f"Run time {result['seconds']:.0f} s (this machine, loaded).", ""]
     return "\n".join(lines)
 

@@ -20,18 +20,20 @@ converge on what is left.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from ..calib.file import Calibration
+from ..errors import InputError
 from ..planar import apply_h
-from .mend import mend_camera, mend_projector
+from .mend import camera_motion, mend_camera, mend_projector
 from .residual import predictor_for
 
 log = logging.getLogger(__name__)
 
-__all__ = ["content_warps", "refit_geometry", "which_moved"]
+__all__ = ["content_warps", "mend_geometry", "refit_geometry", "which_moved"]
 
 # ECC stops after this many iterations or when the warp moves by less than this.
 _ECC_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-5)
@@ -196,3 +198,55 @@ def which_moved(calib: Calibration, warps: list[np.ndarray | None]) -> str | Non
     rms_p, rms_c = (float(np.sqrt(np.mean(e ** 2))) for e in (err_p, err_c))
     log.debug("which moved: projector %.4f, camera %.4f camera px RMS", rms_p, rms_c)
     return "camera" if rms_c < rms_p else "projector"
+
+
+def mend_geometry(calib: Calibration, reports: list, shown: np.ndarray, capture: np.ndarray,
+                  min_confidence: float, clear_px: float,
+                  report: Callable) -> tuple[Calibration | None, dict]:
+    """The calibration mended for the geometry change ``reports`` (a watcher's looks) measured,
+    and what was done; (None, detail) when the change is under ``clear_px`` (too small to apply).
+
+    Parameters
+    ----------
+    reports : :class:`~rtdefocus.watch.residual.ResidualReport` of the looks that saw the change.
+    shown, capture : the last look's projector frame and camera frame.
+    min_confidence : a plane's phase-correlation peak under it says nothing of its shift.
+    clear_px : projector px under which the change is no change.
+    report : the residual report function (to tell a camera move from a projector move when
+        the content warps do not say).
+    """
+    # Planes whose correlation peak is too low say nothing; a plane no look could measure
+    # takes the mean of the others.
+    seen = np.stack([np.where((r.confidence >= min_confidence)[:, None], r.shifts_proj, np.nan)
+                     for r in reports])
+    ok = np.isfinite(seen).all(axis=2).any(axis=0)
+    if not ok.any():
+        raise InputError("no plane's content shift could be measured")
+    shifts = np.full((calib.n_planes, 2), np.nan)
+    shifts[ok] = np.nanmedian(seen[:, ok], axis=0)
+    shifts[~ok] = shifts[ok].mean(axis=0)
+    detail: dict = {"shifts_proj": np.round(shifts, 3).tolist()}
+    if float(np.linalg.norm(shifts, axis=1).max()) < clear_px:
+        return None, detail
+    # A camera move shifts the walls with the content, a projector move the content alone:
+    # one homography for all planes, in projector or in camera pixels, says which moved.
+    detail["moved"] = "projector"
+    new = mend_projector(calib, shifts)
+    cam = camera_motion(calib, shifts)
+    moved = which_moved(calib, content_warps(calib, shown, capture, start=shifts))
+    if moved == "camera" and np.all(np.isfinite(cam)):
+        detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
+        new = mend_camera(calib, cam.mean(axis=0))
+    elif moved is None and np.all(np.isfinite(cam)):
+        # the warps do not say: the mend whose model explains the capture better
+        as_cam = mend_camera(calib, cam.mean(axis=0))
+        rms = {"camera": report(as_cam, shown, capture).rms_after,
+               "projector": report(new, shown, capture).rms_after}
+        detail["rms"] = {k: round(v, 6) for k, v in rms.items()}
+        if rms["camera"] < rms["projector"]:
+            detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
+            new = as_cam
+    # The shifts leave a turn's shear and scale: align the content to the sub-pixel.
+    new, left = refit_geometry(new, shown, capture, detail["moved"])
+    detail["refit_left_px"] = round(left, 4)
+    return new, detail

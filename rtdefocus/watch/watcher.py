@@ -15,7 +15,9 @@ frame tells nothing of light or focus, see :class:`Thresholds`).
 
 On a detection the model is no longer trusted (:attr:`Watcher.trusted` False: the Player
 shows geometry only, never worse than no compensation) and a mend is estimated from the
-content, with no pattern on the screen:
+content, with no pattern on the screen. A geometry change is distrusted from the first look
+over its threshold, before the next confirms it (a stale geometry compensated is worse than
+geometry only; a look that does not confirm it puts the compensation back):
 
 * light: albedo and ambient re-scaled by the report's gain and added room light;
 * geometry: a camera move is one camera-side correction for all planes, a projector move one
@@ -58,8 +60,8 @@ from ..errors import InputError, RtDefocusError
 from .burst import BURSTS, Burst, BurstOptions, BurstRunner
 from .focus import fit_band_scale
 from .levels import BandLevels, band_level, content_informs
-from .mend import camera_motion, mend_camera, mend_light, mend_projector, rescale_radii
-from .refit import content_warps, refit_geometry, which_moved
+from .mend import mend_light, rescale_radii
+from .refit import mend_geometry
 from .residual import ResidualReport, residual_report
 
 log = logging.getLogger(__name__)
@@ -79,7 +81,9 @@ class WatchEvent:
     ----------
     t : show time (s, the watcher's clock) of the look that led to it.
     kind : "geometry" | "light" | "focus" | "lost" (the camera no longer sees the frame).
-    action : "detect" (a change confirmed: the model is no longer trusted), "burst" (pattern
+    action : "suspect" (a look saw the geometry move: geometry only until the next look
+        says), "dismiss" (the next look did not see it: compensated again), "detect" (a
+        change confirmed: the model is no longer trusted), "burst" (pattern
         frames to be shown instead of the content, to re-measure it), "mend" (a new
         calibration handed to the Player), "cleared" (a later look found the model right for
         this kind again), "retract" (a confirmed change whose mend came out too small to
@@ -237,7 +241,8 @@ class Watcher:
     @property
     def trusted(self) -> bool:
         """False while a change is detected and not yet mended and checked (or an update is
-        waiting for the Player): show geometry only."""
+        waiting for the Player), and from a look that sees the geometry move until the next
+        look confirms or dismisses it: show geometry only."""
         with self._lock:
             return self._trusted and self._pending is None
 
@@ -367,11 +372,15 @@ class Watcher:
                 self._measured[k] = [r]
                 todo = todo or k
             elif blocked or not over[k]:
+                if k == "geometry" and self._suspect[k]:
+                    self._event(t, k, "dismiss", self._describe(k, r))
                 self._suspect[k], self._measured[k] = 0, []
             else:
                 blocked = True
                 self._suspect[k] += 1
                 self._measured[k].append(r)
+                if k == "geometry" and self._suspect[k] == 1 < self.confirm:
+                    self._event(t, k, "suspect", self._describe(k, r))
                 if self._suspect[k] >= self.confirm:
                     self._active[k], self._before[k] = 0, self.calib
                     self._event(t, k, "detect", self._describe(k, r))
@@ -399,7 +408,11 @@ class Watcher:
 
     def _update_trust(self) -> None:
         with self._lock:
-            was, self._trusted = self._trusted, not self._active
+            # A stale geometry compensated is worse than geometry only (its sharpening lands
+            # beside the edges); a stale light or focus model is not: only a geometry
+            # suspicion puts the show on geometry only before the change is confirmed.
+            was = self._trusted
+            self._trusted = not self._active and not self._suspect["geometry"]
         if self._trusted and not was:
             log.info("watch: the model is trusted again")
 
@@ -523,41 +536,8 @@ class Watcher:
             # again, on any content, so the next look clears the change.
             return mend_light(calib, gain / g_ref, (added - a_ref) / g_ref), detail
         if kind == "geometry":
-            # Planes whose correlation peak is too low say nothing, as in _classify; a plane
-            # no look could measure takes the mean of the others.
-            seen = np.stack([np.where((r.confidence >= th.min_confidence)[:, None],
-                                      r.shifts_proj, np.nan) for r in reports])
-            ok = np.isfinite(seen).all(axis=2).any(axis=0)
-            if not ok.any():
-                raise InputError("no plane's content shift could be measured")
-            shifts = np.full((calib.n_planes, 2), np.nan)
-            shifts[ok] = np.nanmedian(seen[:, ok], axis=0)
-            shifts[~ok] = shifts[ok].mean(axis=0)
-            detail = {"shifts_proj": np.round(shifts, 3).tolist()}
-            if float(np.linalg.norm(shifts, axis=1).max()) < th.geometry_px[1]:
-                return None, detail
-            # A camera move shifts the walls with the content, a projector move the content
-            # alone: the mend whose model explains the capture better says which it was.
-            detail["moved"] = "projector"
-            new = mend_projector(calib, shifts)
-            cam = camera_motion(calib, shifts)
-            # One homography for all planes, in projector or in camera pixels, says which moved.
-            moved = which_moved(calib, content_warps(calib, shown, capture, start=shifts))
-            if moved == "camera" and np.all(np.isfinite(cam)):
-                detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
-                new = mend_camera(calib, cam.mean(axis=0))
-            elif moved is None and np.all(np.isfinite(cam)):
-                as_cam = mend_camera(calib, cam.mean(axis=0))
-                rms = {"camera": self.report(as_cam, shown, capture).rms_after,
-                       "projector": self.report(new, shown, capture).rms_after}
-                detail["rms"] = {k: round(v, 6) for k, v in rms.items()}
-                if rms["camera"] < rms["projector"]:
-                    detail.update(moved="camera", shift_cam=np.round(cam.mean(axis=0), 3).tolist())
-                    new = as_cam
-            # The shifts leave a turn's shear and scale: align the content to the sub-pixel.
-            new, left = refit_geometry(new, shown, capture, detail["moved"])
-            detail["refit_left_px"] = round(left, 4)
-            return new, detail
+            return mend_geometry(calib, reports, shown, capture, th.min_confidence,
+                                 th.geometry_px[1], self.report)
         base = self._band_base.level(reports[-1])
         if base is None:
             raise InputError("no band-pass level of the unchanged set-up to rescale the kernels to")
