@@ -85,6 +85,26 @@ def test_event_figures_from_records():
     assert fig["none_vs_oracle_db"] == pytest.approx(np.mean([-1, -5, -5, -5, -5]))
 
 
+def test_event_figures_split_the_frames_before_and_after_the_look_that_saw_the_change():
+    """A bump suspected by the look at 1 s and confirmed at 2 s: *seen* is the suspicion; the
+    frames up to it went out before any look could see the change, those after it count in
+    *after seen* (until the first update)."""
+    psnr = {"oracle": [30] * 5, "watch": [28.5, 28.7, 28.8, 29.0, 29.9],
+            "geometry": [29.0, 29.0, 28.9, 29.0, 29.0]}
+    play = {"rows": tuple(psnr), "duration_s": 5.0, "fps": 1.0,
+            "records": [{"t": float(i), "psnr": {k: v[i] for k, v in psnr.items()},
+                         "trusted": i in (0, 1, 4)} for i in range(5)],
+            "events": [{"t": 0.0, "kind": "bump", "params": {"camera_shift_px": 4.0}}],
+            "watch_events": [{"t": 1.0, "kind": "geometry", "action": "suspect"},
+                             {"t": 2.0, "kind": "geometry", "action": "detect"},
+                             {"t": 2.0, "kind": "geometry", "action": "mend"}],
+            "updates": [{"t": 3.0}]}
+    (fig,) = event_figures(play)
+    assert fig["seen_s"] == 1.0 and fig["detected_s"] == 2.0 and fig["mended_s"] == 3.0
+    assert fig["worst_vs_geometry_db"] == pytest.approx(-0.5)     # the frame at 0 s
+    assert fig["worst_after_seen_db"] == pytest.approx(-0.1)      # the frame at 2 s
+
+
 def test_cli_drift_runs(tmp_path, capsys):
     """The command line: a short unchanged run writes the report (no events fall due)."""
     rc = main(["-q", "eval", "--drift", "--size", "160x120", "--fps", "10", "--duration", "0.5",
@@ -117,12 +137,12 @@ def test_watch_row_mends_a_light_change(tmp_path):
 
 def test_unchanged_show_with_a_cut_raises_no_alarm():
     """5 s of the unchanged set-up (still, pan, the cut at 4 s) through the watch row: no
-    detection, no update, every frame compensated."""
+    detection, no geometry suspicion, no update, every frame compensated."""
     from rtdefocus.study.eval_drift import run_false_alarm
 
     fa = run_false_alarm("cubicle", TINY["size"], TINY["fps"], 5.0)
     assert fa["frames"] == 50
-    assert (fa["detections"], fa["updates"], fa["geometry_frames"]) == (0, 0, 0)
+    assert (fa["detections"], fa["suspicions"], fa["updates"], fa["geometry_frames"]) == (0, 0, 0, 0)
 
 
 def test_separate_plays_start_each_event_on_a_fresh_setup():

@@ -25,7 +25,7 @@ from rtdefocus.watch import (
     residual_report,
 )
 from rtdefocus.watch.refit import refit_geometry
-from rtdefocus.watch.session import FrameClock, watched_path
+from rtdefocus.watch.session import FrameClock, timeline_view, watched_path
 
 PROJ, CAM = (240, 180), (360, 270)
 FPS = 10.0
@@ -205,6 +205,43 @@ def test_unchanged_set_up_playing_moving_content_with_a_cut_raises_no_alarm(pres
     assert w.looks >= 12
     assert [e for e in w.events if e.action == "detect"] == [] and w.false_alarms == 0
     assert w.trusted and w.untrusted_frames == 0 and w.calib is calib
+
+
+def _knocked(pc, calib, timeline, frames):
+    """A synchronous watcher (looks every 0.25 s: every 3rd frame at 10 fps) over ``frames`` of
+    the content while ``timeline`` changes the set-up; the trust it gave after each frame."""
+    clock = FrameClock(FPS)
+    look = timeline_view(pc, timeline, clock)
+    w = Watcher(calib, look, clock=clock, threaded=False)
+    trusted = []
+    for i in range(frames):
+        w.poll()
+        w.offer(content(i))
+        trusted.append(w.trusted)
+    return w, trusted
+
+
+def test_a_look_that_sees_the_geometry_move_shows_geometry_only_until_the_next_says():
+    """Stale geometry compensated is worse than geometry only: the first look that sees the
+    picture moved (over the high threshold) puts the show on geometry only at once, before a
+    second look confirms the move; a second look that does not see it (the camera knocked and
+    back between the two) puts the compensation back, with no detection and no update."""
+    pc, calib = setup()
+    knock = (CHANGE_AT, "bump", {"camera_shift_px": 4.0})
+    back = (CHANGE_AT + 0.3, "bump", {"camera_shift_px": -4.0})
+    # looks at frames 0, 3, ..., 9, 12, 15: the knock at frame 10 is first seen at frame 12
+    w, trusted = _knocked(pc, calib, sim.Timeline([knock, back]), 18)
+    assert [(e.kind, e.action, round(e.t, 2)) for e in w.events] == [
+        ("geometry", "suspect", 1.2), ("geometry", "dismiss", 1.5)], w.events
+    assert trusted == [True] * 12 + [False] * 3 + [True] * 3
+    assert w.untrusted_frames == 3 and w.poll() is None and w.calib is calib
+    assert np.hypot(*w.events[0].detail["shifts_proj"][0]) > Thresholds().geometry_px[0]
+    # knocked and left: the same look distrusts it, the next confirms it and mends it
+    pc, calib = setup()
+    w, trusted = _knocked(pc, calib, sim.Timeline([knock]), 16)
+    assert [(e.action, round(e.t, 2)) for e in w.events[:3]] == [
+        ("suspect", 1.2), ("detect", 1.5), ("mend", 1.5)], w.events
+    assert trusted == [True] * 12 + [False] * 4 and w.untrusted_frames == 3
 
 
 def test_plain_frames_say_nothing_and_raise_no_alarm():
