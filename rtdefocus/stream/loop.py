@@ -69,6 +69,7 @@ from .cache import SlideCache, calibration_fingerprint
 from .catch_up import CatchUp, warm_up
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .decoder import END, Decoder, Failure
+from .repeat import same_picture
 from .sinks import Sink
 from .slides import Slideshow, StillRefiner
 from .sources import Frame, SlidesSource, Source
@@ -311,8 +312,7 @@ class Player:
         """Realtime with the adaptive budget: the same picture as the frame before (a paused
         video, a still)."""
         prev, self._prev_input = self._prev_input, image
-        return (self.budget is not None and prev is not None and prev.shape == image.shape
-                and np.array_equal(prev, image))
+        return self.budget is not None and prev is not None and same_picture(prev, image)
 
     def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float,
                 overlay: bool = True) -> None:
