@@ -2,7 +2,7 @@
 
 The live player asks this of every frame, moving ones included, on the frame's critical path,
 and its decoder of every frame it drops. A moving picture almost always differs on a few rows
-spread over the frame, so those are compared first (1/37 of the bytes of an 800x600 frame);
+spread over the frame, so those are compared first (1/150 of the bytes of an 800x600 frame);
 only a picture equal there is compared whole, so the answer is exact either way.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Rows compared first, evenly spread over the frame.
-SAMPLE_ROWS = 16
+SAMPLE_ROWS = 4
 
 
 def same_picture(a: np.ndarray, b: np.ndarray) -> bool:
