@@ -7,12 +7,13 @@ it would lose its first frame, which geometry only would have shown. :class:`Bac
 solves it on a worker thread of its own instead: the loop warps the still (GL stays on the
 thread that owns its context), shows that warp and hands it to the worker, which runs the
 Compensator's solve (:meth:`~rtdefocus.Compensator.compensate_warped`: OpenCL or NumPy only).
-Meanwhile the loop shows every frame with geometry only and starts no compensation (the
-device is busy). At the first frame after the worker is done, the result is shown if that
-frame is still the same picture (and the display mode and calibration did not change);
-otherwise it is dropped, never shown on another picture. The Compensator's video state is then
-that of the still, as after a settle on the loop's thread: the next compensated frame starts
-from it by the motion, or cold where the motion finds a cut.
+Meanwhile the loop shows every frame with geometry only (the still's repeats as its warp again,
+at no cost) and starts no compensation (the device is busy). At the first frame after the
+worker is done, the result is shown if that frame is still the same picture (and the display
+mode and calibration did not change); otherwise it is dropped, never shown on another picture.
+The Compensator's video state is then that of the still, as after a settle on the loop's
+thread: the next compensated frame starts from it by the motion, or cold where the motion finds
+a cut.
 
 The settle runs beside the loop only where the Compensator solves a warped frame itself
 (``compensate_warped`` defined on its class: a wrapper that paces ``compensate`` and forwards
@@ -42,6 +43,7 @@ class _Job:
     comp: object            # the Compensator it runs on
     version: int            # the controls' version when it started (mode, overlay)
     index: int              # the frame it settles
+    warped: np.ndarray      # its geometry only, on the screen while the picture stays
     stale: bool = False     # the picture changed since: its result is dropped
 
 
@@ -86,7 +88,7 @@ class BackgroundSettle:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-settle")
         future = self._pool.submit(_solve, p.comp, warped, iterations, warp_s)
-        self._job = _Job(future, p.comp, p.controls.version, frame.index)
+        self._job = _Job(future, p.comp, p.controls.version, frame.index, warped)
         log.debug("settle of frame %d started beside the loop (%d iterations)", frame.index,
                   iterations or 0)
         p.stats.geometry_frames += 1
@@ -109,7 +111,11 @@ class BackgroundSettle:
             if not full:
                 return False                 # (rendered without the solver's device)
             p._prev_compensated = False
-            p._show_geometry(frame, t_start)
+            if job.stale:
+                p._show_geometry(frame, t_start)
+            else:                            # the same picture: its warp again, at no cost
+                p.stats.geometry_frames += 1
+                p.present(job.warped, frame.index, frame.t_read, t_start)
             return True
         self._job = None
         out, info, seconds = job.future.result()     # (the worker's error is raised here)
