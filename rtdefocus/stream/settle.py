@@ -113,6 +113,8 @@ class BackgroundSettle:
             p._prev_compensated = False
             if job.stale:
                 p._show_geometry(frame, t_start)
+                if not still and p._catch_up is not None:
+                    p._catch_up.judge(frame, compensated=False)   # (a calm moving frame)
             else:                            # the same picture: its warp again, at no cost
                 p.stats.geometry_frames += 1
                 p.present(job.warped, frame.index, frame.t_read, t_start)
