@@ -123,9 +123,11 @@ class BackgroundSettle:
         out, info, seconds = job.future.result()     # (the worker's error is raised here)
         if job.stale:
             self.dropped += 1
-            log.debug("settle of frame %d dropped: the picture changed before it was done",
-                      job.index)
+            log.debug("settle of frame %d dropped at frame %d (%.0f ms): the picture changed "
+                      "before it was done", job.index, frame.index, 1e3 * seconds)
             return False
+        log.debug("settle of frame %d shown at frame %d (%.0f ms)", job.index, frame.index,
+                  1e3 * seconds)
         p._count_solve(seconds, info, None)
         p._last_out, p._prev_compensated = out, True
         p.present(out, frame.index, frame.t_read, t_start)
