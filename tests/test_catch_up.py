@@ -190,3 +190,20 @@ def test_a_late_frame_raises_the_margin_and_calm_frames_bring_it_back(monkeypatc
     for _ in range(catch_up.CATCH_UP_CALM):
         cu.judge(frame, compensated=True)
     assert cu.margin == pytest.approx(start)
+
+
+def test_the_budget_answers_as_numpys_median_and_lower_quantile():
+    """The deadline's median and the margin's quantile, asked on every live frame, are computed
+    without NumPy (a few values): the same answers as np.median and np.quantile(method="lower")
+    for every count of frames and every quantile."""
+    rng = np.random.default_rng(3)
+    budget = IterationBudget(30.0)
+    for n in range(1, 40):
+        f = float(rng.uniform(0.8, 1.6))
+        budget.update(f * (0.030 + PER_ITERATION), f * PER_ITERATION, 1)
+        ratios = np.asarray(budget._ratios[False])
+        for q in (0.0, 0.5, 0.9, catch_up.CATCH_UP_QUANTILE, 1.0):
+            want = (None if len(ratios) < 8 else float(np.quantile(ratios, q, method="lower")))
+            assert budget.cost_ratio(q) == want, (n, q)
+        rest = float(np.median(budget._recent[False])) + budget.iterations * budget.per_iteration
+        assert budget.frame_seconds(deadline=True) == pytest.approx(rest, rel=1e-12), n

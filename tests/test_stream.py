@@ -864,3 +864,41 @@ def test_budget_expects_a_repeat_cost_until_one_is_measured():
     assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.020)
     b.expect(0.001, repeat=True)
     assert b.frame_seconds(0, repeat=True, deadline=True) == pytest.approx(0.020)
+
+
+def test_a_moving_frame_shown_with_geometry_only_costs_no_estimate_and_no_whole_compare(
+        comp, monkeypatch):
+    """A device whose frames cost 150 ms at 30 fps: the player shows every moving frame with
+    geometry only, and beside the warp does no work whose result it would not use: no
+    compensation, no motion estimate, and a repeated picture is told from a moving one by a
+    few rows (the whole frame is compared only where they are the same, as in a still)."""
+    from rtdefocus.stream import repeat
+
+    still, moving = 6, 24
+    frames = [synthetic_frames(1, seed=1)[0].copy() for _ in range(still)] + synthetic_frames(moving)
+    wholes, estimates, compensated, warmed = [], [], [], []
+    whole_equal = repeat._whole_equal
+    monkeypatch.setattr(repeat, "_whole_equal", lambda a, b: wholes.append(1) or whole_equal(a, b))
+    estimate = comp._motion.estimate
+    monkeypatch.setattr(comp._motion, "estimate",
+                        lambda *a: estimates.append(bool(warmed)) or estimate(*a))
+    comp.reset()
+
+    class Device(PacedCompensator):
+        def compensate(self, image, **kw):
+            compensated.append(bool(warmed))
+            return super().compensate(image, **kw)
+
+        def warm_up(self, iterations=1, frames=1):
+            info = super().warm_up(iterations=iterations, frames=frames)
+            warmed.append(True)
+            return info
+
+    paced = Device(comp, overhead=0.150 - 0.004, per_iteration=0.004)
+    player = Player(paced, ArraySource(frames, fps=30.0, live=True), RecordingSink(realtime=True))
+    stats = player.run()
+    assert warmed and stats.geometry_frames == stats.frames_out, stats.summary()
+    assert True not in compensated and True not in estimates, (compensated, estimates)
+    # the still's repeats (5), and at most a copy per frame the decoder dropped
+    assert len(wholes) <= still - 1 + stats.dropped, (len(wholes), stats.summary())
+    assert stats.frames_out + stats.dropped == still + moving

@@ -197,6 +197,13 @@ class Compensator:
     def projector_size(self) -> tuple[int, int]:
         return tuple(self.calib.projector_size)
 
+    @property
+    def shares_gl(self) -> bool:
+        """The solver's OpenCL context shares the warp's GL context (:mod:`rtdefocus.cl.glshare`):
+        the warp's renderbuffer is then an OpenCL image, so the warp and a solve must not run on
+        two threads at once."""
+        return self._gl_share is not None
+
     def display_rect(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
         """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears."""
         return self.calib.display_rect(size)

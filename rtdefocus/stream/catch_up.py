@@ -52,10 +52,13 @@ CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
 CATCH_UP_FRESH = 2
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
-#: long as that compensation takes with the safety margin: the frames a settle drops are copies
-#: of the picture unless the picture changes during it, which a still that lasted that long
-#: seldom does. Before it the picture is shown with geometry only, after it as compensated
-#: (refined further only where a refinement fits two periods).
+#: long as that compensation takes with the safety margin. The live player solves it beside the
+#: frame loop where it can (:mod:`rtdefocus.stream.settle`: no frame is dropped for it, and its
+#: result is dropped if the picture changes first); on the loop, the frames it drops are copies
+#: of the picture unless the picture changes during it. Either way a still that lasted that
+#: long seldom ends during it, so the work (which shares the device with the warps) is seldom
+#: wasted. Before it the picture is shown with geometry only, after it as compensated (refined
+#: further only where a refinement fits two periods).
 CATCH_UP_STILL_WAIT = 4
 #: Moving frames a live player's warm-up times (:meth:`rtdefocus.Compensator.warm_up`): the
 #: first sets the expected cost, the others measure its spread (SPREAD_MIN of them), so the
@@ -133,9 +136,9 @@ class CatchUp:
         did not change since the frame before (``still``; a still, a paused video file):
         ``("reshow", None)`` once it is compensated (``repeat`` and ``can_reshow``: its last
         output again, at no cost); before that, once, ``("settle", n)`` (compensate, though it
-        may end late) where the picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long
-        as that takes, else ``("geometry", None)``. Without measured costs:
-        ``("compensate", iterations)``."""
+        may take several periods: beside the frame loop where the player can) where the
+        picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else
+        ``("geometry", None)``. Without measured costs: ``("compensate", iterations)``."""
         b = self.budget
         self._fresh = 0 if still else self._fresh + 1
         rest = b.frame_seconds(0, repeat, deadline=True)

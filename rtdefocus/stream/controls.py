@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import statistics
 from dataclasses import dataclass
 
 import cv2
@@ -150,7 +151,8 @@ class IterationBudget:
         if self.per_iteration is None or rest is None:
             return None
         if deadline:
-            rest = float(np.median(self._recent[kind]))
+            # (statistics, not NumPy: a few values, asked on every live frame)
+            rest = float(statistics.median(self._recent[kind]))
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
@@ -166,7 +168,8 @@ class IterationBudget:
         ratios = self._ratios[bool(repeat)]
         if len(ratios) < SPREAD_MIN:
             return None
-        return float(np.quantile(np.asarray(ratios), quantile, method="lower"))
+        # NumPy's quantile(method="lower") over a few values, asked on every live frame
+        return float(sorted(ratios)[math.floor(quantile * (len(ratios) - 1))])
 
     def expect(self, rest: float, repeat: bool = True) -> None:
         """An expected rest (seconds, all but the solve) for a kind not measured yet; the

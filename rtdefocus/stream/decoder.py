@@ -15,8 +15,7 @@ import queue
 import threading
 import time
 
-import numpy as np
-
+from .repeat import same_picture
 from .sources import Frame, Source
 from .stats import LoopStats
 
@@ -144,8 +143,7 @@ class Decoder:
         else:
             return False
         return (before is not None and before.index not in self._lost
-                and before.image.shape == stale.image.shape
-                and np.array_equal(before.image, stale.image))
+                and same_picture(before.image, stale.image))
 
     def _put_blocking(self, item) -> None:
         while not self._stop.is_set():

@@ -37,7 +37,8 @@ per-frame iteration budget adapts to hold the target frame rate
 (:class:`~rtdefocus.stream.controls.IterationBudget`). Where even its minimum does not fit (a
 slow device on moving content), a frame whose compensation, by its measured cost times a safety
 margin, would end after the frame after next has arrived is shown with geometry only
-(``catch_up``; see :mod:`rtdefocus.stream.catch_up`): a warp costs a fraction of a
+(``catch_up``; see :mod:`rtdefocus.stream.catch_up`; a still picture's one compensation, its
+settle, is solved beside the loop: :mod:`rtdefocus.stream.settle`): a warp costs a fraction of a
 solve, so the loop keeps up instead of dropping the next frame and leaving a late one on the
 screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
 ``stats.geometry_frames`` counts them). Before the first frame a live player runs the
@@ -69,6 +70,8 @@ from .cache import SlideCache, calibration_fingerprint
 from .catch_up import CatchUp, warm_up
 from .controls import Controls, IterationBudget, KeyDispatcher, draw_overlay
 from .decoder import END, Decoder, Failure
+from .repeat import same_picture
+from .settle import BackgroundSettle
 from .sinks import Sink
 from .slides import Slideshow, StillRefiner
 from .sources import Frame, SlidesSource, Source
@@ -187,6 +190,7 @@ class Player:
         self._prev_compensated = False               # ... and whether it was compensated
         self._catch_up = CatchUp(self.budget) if self.budget is not None else None
         self._last_out: np.ndarray | None = None     # the last compensated output (reshow)
+        self._settle = BackgroundSettle(self)        # a still's settle beside the frame loop
         self._writer: SinkWriter | None = None
         if watcher is not None and not hasattr(compensator, "with_calibration"):
             raise InputError("a watcher needs a compensator with with_calibration(calib) (as "
@@ -268,8 +272,11 @@ class Player:
     def _compensate(self, image: np.ndarray, iterations: int | None, warm_start: bool) -> np.ndarray:
         t0 = time.perf_counter()
         out = self.comp.compensate(image, iterations=iterations, warm_start=warm_start)
-        dt = time.perf_counter() - t0
-        info = getattr(self.comp, "last_info", None) or {}
+        self._count_solve(time.perf_counter() - t0, getattr(self.comp, "last_info", None) or {},
+                          iterations)
+        return out
+
+    def _count_solve(self, dt: float, info: dict, iterations: int | None) -> None:
         st = self.stats
         st.add("compensate", dt)
         for stage, sec in (info.get("seconds") or {}).items():
@@ -280,7 +287,6 @@ class Player:
         dist = info.get("distances")
         if dist:
             st.residual = float(dist[-1])
-        return out
 
     def render(self, image: np.ndarray, *, iterations: int | None = None,
                warm_start: bool = True) -> np.ndarray:
@@ -311,8 +317,7 @@ class Player:
         """Realtime with the adaptive budget: the same picture as the frame before (a paused
         video, a still)."""
         prev, self._prev_input = self._prev_input, image
-        return (self.budget is not None and prev is not None and prev.shape == image.shape
-                and np.array_equal(prev, image))
+        return self.budget is not None and prev is not None and same_picture(prev, image)
 
     def present(self, out: np.ndarray, index: int, t_read: float | None, t_start: float,
                 overlay: bool = True) -> None:
@@ -395,10 +400,10 @@ class Player:
             return
         self.present(self._warp(frame.image), frame.index, frame.t_read, t_start)
 
-    def _update_budget(self, t_start: float, repeat: bool = False) -> None:
+    def _update_budget(self, t_start: float, repeat: bool = False, info: dict | None = None) -> None:
         if self.budget is None or self.controls.mode != "full":
             return
-        info = getattr(self.comp, "last_info", None) or {}
+        info = info if info is not None else (getattr(self.comp, "last_info", None) or {})
         sec = info.get("seconds") or {}
         its = int(info.get("iterations", 0) or 0)
         solve = float(sec.get("solve", 0.0)) if "solve" in sec else self.stats.stages["compensate"].last
@@ -446,6 +451,7 @@ class Player:
             ok = True
         finally:
             self._stop.set()
+            self._settle.close()                 # the settle's worker, joined
             self._pause_source(False)            # a read waiting on a paused clock returns
             if self._writer is not None:
                 if not ok:
@@ -478,6 +484,7 @@ class Player:
                 self._hold.set()
                 self._pause_source(True)
                 if held is not None:
+                    self._settle.wait()          # (the refinement needs the solver)
                     shown_version = self._refresh_held(held, shown_version)
                 else:
                     self.idle(0.02)
@@ -509,35 +516,42 @@ class Player:
             elif self._direct_geometry():
                 self._present_warped(frame.image, frame.index, frame.t_read, t0)
             else:
-                # ``still``: the picture did not change; ``repeat``: nor since the last frame
-                # compensated, which then skips the warp and the motion estimate (budget kinds)
-                still = self._same_as_previous(frame.image)
-                repeat = still and self._prev_compensated
+                still = self._same_as_previous(frame.image)   # the picture did not change
                 if not still and self._catch_up is not None:
                     self._catch_up.new_picture(frame.index)
-                action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
-                                                          still, repeat)
-                geometry = action == "geometry"
-                # The watcher knows the model is wrong: geometry only until it is mended.
-                distrust = self.watcher is not None and not self.watcher.trusted
-                self._prev_compensated = not (geometry or distrust) and self.controls.mode == "full"
-                if geometry:
-                    self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
-                elif distrust and self.controls.mode == "full":
-                    self.present(self._warp(frame.image), frame.index, frame.t_read, t0)
-                elif action == "reshow":
-                    self.present(self._last_out, frame.index, frame.t_read, t0)
-                else:
-                    out = self.render(frame.image, iterations=iters)
-                    self._last_out = out if self.controls.mode == "full" else None
-                    self.present(out, frame.index, frame.t_read, t0)
-                    self._update_budget(t0, repeat)
-                if self._catch_up is not None and (not still or action == "compensate"):
-                    # (a settle is expected to run long)
-                    self._catch_up.judge(frame, compensated=action == "compensate")
+                if not self._settle.show(frame, still, t0):  # (one in progress: shown there)
+                    self._show_frame(frame, still, t0)
             held, shown_version = frame, c.version
             if self.progress:
                 self.progress(self.stats.frames_out, self.source.n_frames)
+
+    def _show_frame(self, frame: Frame, still: bool, t0: float) -> None:
+        """``frame`` compensated, or shown so as to keep up (``still``: the same picture as the
+        frame before; ``repeat``: nor since the last frame compensated, which then skips the
+        warp and the motion estimate)."""
+        repeat = still and self._prev_compensated
+        action, iters = self._catch_up_iterations(frame, self._frame_iterations(repeat),
+                                                  still, repeat)
+        geometry = action == "geometry"
+        # The watcher knows the model is wrong: geometry only until it is mended.
+        distrust = self.watcher is not None and not self.watcher.trusted
+        self._prev_compensated = not (geometry or distrust) and self.controls.mode == "full"
+        if geometry:
+            self._show_geometry(frame, t0)   # (the budget learns from compensated frames)
+        elif distrust and self.controls.mode == "full":
+            self.present(self._warp(frame.image), frame.index, frame.t_read, t0)
+        elif action == "reshow":
+            self.present(self._last_out, frame.index, frame.t_read, t0)
+        elif action == "settle" and self._settle.start(frame, iters, t0):
+            self._prev_compensated = False   # (until its result is shown)
+        else:
+            out = self.render(frame.image, iterations=iters)
+            self._last_out = out if self.controls.mode == "full" else None
+            self.present(out, frame.index, frame.t_read, t0)
+            self._update_budget(t0, repeat)
+        if self._catch_up is not None and (not still or action == "compensate"):
+            # (a settle is expected to run long)
+            self._catch_up.judge(frame, compensated=action == "compensate")
 
     def _apply_watch(self) -> None:
         """Between two frames: the watcher's mended calibration, as a new Compensator."""

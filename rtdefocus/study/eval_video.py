@@ -185,8 +185,9 @@ class _Memo:
 
 class SlowedCompensator:
     """A Compensator on a device ``factor`` times slower than this one, for measuring the live
-    player at other device speeds: every :meth:`compensate` sleeps ``factor - 1`` times its own
-    time after the real work, and reports its stage times scaled by ``factor`` in
+    player at other device speeds: every :meth:`compensate` and :meth:`compensate_warped` (a
+    live player's settle, on its worker thread) sleeps ``factor - 1`` times its own time after
+    the real work, and reports its stage times scaled by ``factor`` in
     ``last_info``, as a slower device would; :meth:`warm_up` reports its scaled times. The
     geometry-only :meth:`warp` (the GL pass, not the compensation device) keeps its cost.
     Anything else is the wrapped Compensator's."""
@@ -215,6 +216,13 @@ class SlowedCompensator:
     def compensate(self, image, **kw):
         t0 = time.perf_counter()
         out = self.comp.compensate(image, **kw)
+        time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
+        self.last_info = self._scaled(self.comp.last_info)
+        return out
+
+    def compensate_warped(self, warped, **kw):
+        t0 = time.perf_counter()
+        out = self.comp.compensate_warped(warped, **kw)
         time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
         self.last_info = self._scaled(self.comp.last_info)
         return out
