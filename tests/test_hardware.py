@@ -193,7 +193,10 @@ def test_warns_when_a_camera_pixel_covers_many_projector_pixels(caplog):
 
 
 # --------------------------------------------------------------------------- controls
-@pytest.mark.parametrize("backend, manual", [("V4L2", 1.0), ("DSHOW", 0.25)], ids=["v4l2", "dshow"])
+# V4L2 in the fast tier; DirectShow's units (log2 seconds) in the whole suite.
+@pytest.mark.parametrize("backend, manual",
+                         [("V4L2", 1.0), pytest.param("DSHOW", 0.25, marks=pytest.mark.slow)],
+                         ids=["v4l2", "dshow"])
 def test_lock_uses_the_backends_values_and_reports_what_did_not_take(backend, manual):
     pc, proj, dev = _procam(camera={"delay": 0.0, "backend": backend}, lock=True, verify=False)
     with pc:
