@@ -215,6 +215,9 @@ def test_lock_uses_the_backends_values_and_reports_what_did_not_take(backend, ma
         assert abs(pc.drift()) < 0.03, "a locked camera keeps its white level"
 
 
+# The fake camera runs in real time (~2.5 s of frames a test): the V4L2 lock above keeps the
+# controls in the fast tier, these variants run in the whole suite.
+@pytest.mark.slow
 def test_lock_on_a_backend_without_controls_says_so():
     pc, _, _ = _procam(camera={"delay": 0.0, "backend": "AVFOUNDATION"}, lock=True, verify=False)
     with pc:
@@ -222,6 +225,7 @@ def test_lock_on_a_backend_without_controls_says_so():
         assert "cannot set camera controls" in pc.controls.failed["exposure"]
 
 
+@pytest.mark.slow
 def test_lock_is_reapplied_after_a_stream_restart(caplog):
     pc, proj, dev = _procam(camera={"delay": 0.0}, lock=True, verify=False, retries=3)
     with pc:
