@@ -23,7 +23,9 @@ def _arrays(calib, path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def saved(small_cubicle):
-    """A live calibration of a small cubicle (all stages) that kept its captures."""
+    """A live calibration of a small cubicle (all stages) that kept its captures. Its users
+    carry ``slow`` (the calibration costs seconds); the recorder and the correspondences keep
+    the module in the fast tier."""
     return small_cubicle[2], small_cubicle[1]
 
 
@@ -31,6 +33,7 @@ def _copy(saved, tmp_path):
     return shutil.copytree(saved[0], tmp_path / "copy")
 
 
+@pytest.mark.slow
 def test_replay_is_bit_for_bit(saved, tmp_path):
     folder, live = saved
     index = json.loads((folder / INDEX_NAME).read_text())
@@ -59,6 +62,7 @@ def test_cli_from_captures_writes_the_same_file(saved, tmp_path):
     assert all(np.array_equal(a[k], b[k]) for k in a) and sorted(a) == sorted(b)
 
 
+@pytest.mark.slow
 def test_missing_files_are_named(saved, tmp_path):
     folder = _copy(saved, tmp_path)
     index = json.loads((folder / INDEX_NAME).read_text())
@@ -70,6 +74,7 @@ def test_missing_files_are_named(saved, tmp_path):
     assert frame in str(err.value) and pattern in str(err.value)
 
 
+@pytest.mark.slow
 def test_a_set_without_its_index_is_incomplete(saved, tmp_path):
     folder = _copy(saved, tmp_path)
     (folder / INDEX_NAME).unlink()
@@ -77,6 +82,7 @@ def test_a_set_without_its_index_is_incomplete(saved, tmp_path):
         rd.calibrate_from_captures(folder)
 
 
+@pytest.mark.slow
 def test_a_damaged_frame_is_named(saved, tmp_path):
     folder = _copy(saved, tmp_path)
     index = json.loads((folder / INDEX_NAME).read_text())
@@ -86,6 +92,7 @@ def test_a_damaged_frame_is_named(saved, tmp_path):
         rd.calibrate_from_captures(folder)
 
 
+@pytest.mark.slow
 def test_another_pattern_is_refused(saved):
     """Other line spacing: the first line pattern differs from the one saved (captures 1 and 2
     are the black and white frames, the same for any spacing)."""
@@ -161,6 +168,7 @@ def test_correspondences_refuse_a_bad_map(true_map):
         rd.calibrate_from_correspondences(xy, valid.astype(np.uint8), (200, 150))
 
 
+@pytest.mark.slow
 def test_a_new_set_over_an_old_one_drops_the_old_index_first(saved, tmp_path):
     """Until the new index is written the folder must not look like a whole set."""
     folder = _copy(saved, tmp_path)

@@ -179,6 +179,7 @@ class JitteryDevice:
         return info
 
 
+@pytest.mark.slow
 def test_window_on_a_jittery_device_loses_no_frame_to_optional_work(tmp_path, monkeypatch):
     """The clip played live at 10 fps through the real player on a device whose moving frames
     cost 0.9-1.25x their usual, with the start alone (motion estimate and carried correction)

@@ -193,7 +193,10 @@ def test_warns_when_a_camera_pixel_covers_many_projector_pixels(caplog):
 
 
 # --------------------------------------------------------------------------- controls
-@pytest.mark.parametrize("backend, manual", [("V4L2", 1.0), ("DSHOW", 0.25)], ids=["v4l2", "dshow"])
+# V4L2 in the fast tier; DirectShow's units (log2 seconds) in the whole suite.
+@pytest.mark.parametrize("backend, manual",
+                         [("V4L2", 1.0), pytest.param("DSHOW", 0.25, marks=pytest.mark.slow)],
+                         ids=["v4l2", "dshow"])
 def test_lock_uses_the_backends_values_and_reports_what_did_not_take(backend, manual):
     pc, proj, dev = _procam(camera={"delay": 0.0, "backend": backend}, lock=True, verify=False)
     with pc:
@@ -212,6 +215,9 @@ def test_lock_uses_the_backends_values_and_reports_what_did_not_take(backend, ma
         assert abs(pc.drift()) < 0.03, "a locked camera keeps its white level"
 
 
+# The fake camera runs in real time (~2.5 s of frames a test): the V4L2 lock above keeps the
+# controls in the fast tier, these variants run in the whole suite.
+@pytest.mark.slow
 def test_lock_on_a_backend_without_controls_says_so():
     pc, _, _ = _procam(camera={"delay": 0.0, "backend": "AVFOUNDATION"}, lock=True, verify=False)
     with pc:
@@ -219,6 +225,7 @@ def test_lock_on_a_backend_without_controls_says_so():
         assert "cannot set camera controls" in pc.controls.failed["exposure"]
 
 
+@pytest.mark.slow
 def test_lock_is_reapplied_after_a_stream_restart(caplog):
     pc, proj, dev = _procam(camera={"delay": 0.0}, lock=True, verify=False, retries=3)
     with pc:

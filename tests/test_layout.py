@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 import sys
 from pathlib import Path
 
@@ -37,6 +38,12 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for p in sorted(PKG.rglob("*.py"))}
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """The parsed file, parsed once per run (several checks walk every module; none edits it)."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def _is_package(name: str, modules: dict[str, Path]) -> bool:
     return modules[name].name == "__init__.py"
 
@@ -45,7 +52,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     """The rtdefocus modules that ``name`` imports (at any level of the file)."""
     pkg = name if _is_package(name, modules) else name.rpartition(".")[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -152,7 +159,7 @@ def _third_party_imports() -> dict[str, bool]:
     std = set(sys.stdlib_module_names)
     found: dict[str, bool] = {}
     for path in PKG.rglob("*.py"):
-        tree = ast.parse(path.read_text())
+        tree = _tree(path)
         top_level = {id(n) for n in tree.body}
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):
@@ -216,7 +223,7 @@ def underscore_imports(modules: dict[str, Path]) -> list[str]:
     out = []
     for path in modules.values():
         where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path.name
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, ast.ImportFrom):
                 for a in node.names:
                     if a.name.startswith("_") and not a.name.startswith("__"):

@@ -305,30 +305,39 @@ def test_diagnostics_picture_and_radius_map():
         psf_diagnostics(cal, truth.radius_map[:10])
 
 
-def _field_jump(cal) -> float:
+def _field_jump(cal, band: int = 32) -> float:
     """Largest L1 change of the blended kernel ``sum_i w_i psf_i`` between two neighbouring
     projector pixels of the same plane. A seam (one sample swapped for another) steps by the
     difference between two measured kernels; a continuous blend by a small fraction of it.
     The kernels have unit sum, so a pair's step is at most the L1 change of its weights: only
-    pairs whose weights change by more than 0.02 need their kernels built."""
-    hp, wp = cal.pix_idx.shape[:2]
+    pairs whose weights change by more than 0.02 need their kernels compared. The weights and
+    the blended kernels are built a band of rows at a time (the whole field would not fit in
+    memory)."""
+    hp, wp, slots = cal.pix_idx.shape
     n = len(cal.psfs)
-    dense = np.zeros((hp * wp, n), np.float32)
-    rows = np.repeat(np.arange(hp * wp), 4)
-    np.add.at(dense, (rows, cal.pix_idx.reshape(-1)), cal.pix_wts.reshape(-1))
-    dense = dense.reshape(hp, wp, n)
+    psfs = cal.psfs.reshape(n, -1).astype(np.float32)
     plane = cal.plane_map()
-    psfs = cal.psfs.reshape(n, -1).astype(np.float64)
     jump = 0.02
-    for axis in (0, 1):
-        a = dense[:-1] if axis == 0 else dense[:, :-1]
-        b = dense[1:] if axis == 0 else dense[:, 1:]
-        same = plane[:-1] == plane[1:] if axis == 0 else plane[:, :-1] == plane[:, 1:]
-        step = np.abs(b - a).sum(axis=2)
-        big = same & (step > jump)
-        if big.any():
-            dk = (b[big] - a[big]).astype(np.float64) @ psfs
-            jump = max(jump, float(np.abs(dk).sum(axis=1).max()))
+    for r0 in range(0, hp, band):
+        rows = slice(r0, min(r0 + band + 1, hp))   # one row more: the pairs across the band's end
+        idx, wts = cal.pix_idx[rows], cal.pix_wts[rows]
+        h = idx.shape[0]
+        flat = np.arange(h * wp)[:, None] * n + idx.reshape(-1, slots)
+        dense = np.bincount(flat.ravel(), wts.astype(np.float64).ravel(),
+                            minlength=h * wp * n).reshape(h, wp, n)
+        pl = plane[rows]
+        down = (pl[:-1] == pl[1:]) & (np.abs(dense[1:] - dense[:-1]).sum(axis=2) > jump)
+        right = (pl[:, :-1] == pl[:, 1:]) & (np.abs(dense[:, 1:] - dense[:, :-1]).sum(axis=2) > jump)
+        if rows.stop < hp:
+            right = right[:-1]                    # the extra row's own pairs: the next band's
+        if not (down.any() or right.any()):
+            continue
+        w = wts.astype(np.float32)
+        kern = sum(w[..., j, None] * psfs[idx[..., j]] for j in range(slots))
+        own = kern[:len(right)]
+        for sel, step in ((down, kern[1:] - kern[:-1]), (right, own[:, 1:] - own[:, :-1])):
+            if sel.any():
+                jump = max(jump, float(np.abs(step[sel]).sum(axis=1).max()))
     return jump
 
 

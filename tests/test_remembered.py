@@ -53,15 +53,24 @@ def rig(monkeypatch):
     return state
 
 
+_CALIBRATED: dict = {}
+
+
 @pytest.fixture()
 def setup_file(rig, tmp_path, capsys):
+    """A file written by `calibrate` through the rig. The calibration runs once per module (it
+    costs seconds of fake-camera frames); each test gets its own copy of the file."""
     from rtdefocus import cli
 
     out = tmp_path / "setup.npz"
-    rc = cli.main(["calibrate", "--camera", "0", "--screen", "1", "--camera-size", "320x240",
-                   "--fourcc", "MJPG", "--lock", "--exposure", "16.7", "--average", "1",
-                   "--stages", "geometry", "-o", str(out)])
-    assert rc == 0, capsys.readouterr()
+    if "file" not in _CALIBRATED:
+        rc = cli.main(["calibrate", "--camera", "0", "--screen", "1", "--camera-size", "320x240",
+                       "--fourcc", "MJPG", "--lock", "--exposure", "16.7", "--average", "1",
+                       "--stages", "geometry", "-o", str(out)])
+        assert rc == 0, capsys.readouterr()
+        _CALIBRATED["file"] = out.read_bytes()
+    else:
+        out.write_bytes(_CALIBRATED["file"])
     capsys.readouterr()
     rig["opened"].clear()
     return out

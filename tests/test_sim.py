@@ -16,6 +16,14 @@ _CACHE: dict = {}
 
 # Presets whose walls are planes (the bowed ones and the gap's far wall: tests/test_sim_walls.py).
 PLANAR = [p for p, sc in sim.PRESETS.items() if not any(sc.bow) and sc.gap_x_frac is None]
+#: The presets the fast tier builds (each full-size build costs about a second); the others
+#: run in the whole suite.
+FAST_PRESETS = ("cubicle", "tilted", "offcenter")
+
+
+def fast_only(presets, fast=FAST_PRESETS):
+    """``presets`` as parameters, those outside ``fast`` marked slow."""
+    return [pytest.param(p, marks=() if p in fast else pytest.mark.slow) for p in presets]
 
 
 def procam(preset: str, **kw) -> sim.VirtualProCam:
@@ -282,7 +290,7 @@ def test_dot_radius_through_camera_matches_truth():
 
 
 # --------------------------------------------------------------------------- geometry
-@pytest.mark.parametrize("preset", ["cubicle", "pillar", "tilted", "offcenter"])
+@pytest.mark.parametrize("preset", fast_only(["cubicle", "pillar", "tilted", "offcenter"]))
 def test_fold_lines_consistent(preset):
     t = procam(preset).truth
     hp, wp = t.plane_map.shape
@@ -323,7 +331,7 @@ def test_flat_has_one_plane():
     assert t.H_cam_from_proj.shape == (1, 3, 3) and np.all(t.plane_map == 0)
 
 
-@pytest.mark.parametrize("preset", PLANAR)
+@pytest.mark.parametrize("preset", fast_only(PLANAR))
 def test_homographies_match_depth_and_pinholes(preset):
     """Back-project with the depth map, move to the camera, project: equals H @ x."""
     t = procam(preset).truth
@@ -362,7 +370,7 @@ def _fit(pts):
     return coef, np.sqrt(np.mean((A @ coef - pts[:, 1]) ** 2))
 
 
-@pytest.mark.parametrize("preset", ["cubicle", "tilted"])
+@pytest.mark.parametrize("preset", fast_only(["cubicle", "tilted"], fast=("cubicle",)))
 @pytest.mark.parametrize("row", [60, 540])
 def test_projected_line_straight_per_wall_bent_at_fold(preset, row):
     pc = procam(preset, noise=0.0)

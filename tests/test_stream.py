@@ -293,6 +293,7 @@ def test_realtime_budget_holds_the_frame_rate(comp):
     assert stats.frames_out + stats.dropped == 60
 
 
+@pytest.mark.slow
 def test_realtime_budget_answers_a_slower_device(comp):
     """When each iteration costs 3x more, the budget falls to what still fits (here 4)."""
     comp.reset()
@@ -387,7 +388,9 @@ def test_catch_up_returns_to_compensating_after_one_slow_frame(comp):
     assert stats.dropped <= 4 + 2, stats.summary()     # the slow frame's own ~4, and few more
 
 
-@pytest.mark.parametrize("frame_ms", [75, 150], ids=["just-over-two-periods", "far-over"])
+# Far over in the fast tier; just over two periods (a live run of ~1.5 s more) in the whole suite.
+@pytest.mark.parametrize("frame_ms", [pytest.param(75, marks=pytest.mark.slow), 150],
+                         ids=["just-over-two-periods", "far-over"])
 def test_catch_up_never_compensates_a_moving_frame_it_expects_late(comp, frame_ms):
     """At 30 fps a moving frame that costs more than two periods (67 ms) would drop the next one:
     the player compensates no such frame, not even to measure the device again (a probe), so
