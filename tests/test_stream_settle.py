@@ -32,6 +32,9 @@ class SettleDevice(PacedCompensator):
     ``frames_during`` more frames than when it began (so it spans at least that many frame
     periods, however fast the machine), or until ``shown_index`` is shown."""
 
+    #: Its settle waits on the player, not on the CPU: a device of its own, as a GPU is.
+    solves_off_the_cpu = True
+
     def __init__(self, comp, frames_during=0, shown_index=None):
         super().__init__(comp, overhead=MOVING - 0.004, per_iteration=0.004)
         self.frames_during, self.shown_index = frames_during, shown_index
@@ -115,3 +118,19 @@ def test_a_wrapper_without_its_own_solve_of_a_warped_frame_settles_on_the_loop(c
     assert BackgroundSettle(Player(dev, ArraySource(synthetic_frames(2), fps=FPS, live=True),
                                    RecordingSink(realtime=True))).available()
 
+
+
+def test_a_solve_on_the_cpu_settles_on_the_loop(comp):
+    """A solve on the CPU cores (NumPy, an OpenCL CPU device) would take them from the warps of
+    the frames shown meanwhile: only a solver off the CPU settles beside the loop."""
+    from rtdefocus.cl.runtime import get_runtime
+
+    cpu = Compensator(virtual_calibration(), backend="numpy")
+    assert not cpu.solves_off_the_cpu
+    source = ArraySource(synthetic_frames(2), fps=FPS, live=True)
+    assert not BackgroundSettle(Player(cpu, source, RecordingSink(realtime=True))).available()
+    if comp.backend == "opencl":
+        assert comp.solves_off_the_cpu == get_runtime().is_gpu
+        player = Player(comp, source, RecordingSink(realtime=True))
+        assert BackgroundSettle(player).available() == (get_runtime().is_gpu
+                                                        and not comp.shares_gl)

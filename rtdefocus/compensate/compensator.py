@@ -204,6 +204,12 @@ class Compensator:
         two threads at once."""
         return self._gl_share is not None
 
+    @property
+    def solves_off_the_cpu(self) -> bool:
+        """The solver runs on a GPU, not on the CPU cores that the frame loop and its warp use:
+        a solve on another thread then takes no time from the frames shown meanwhile."""
+        return self.backend == "opencl" and cl_runtime.get_runtime().is_gpu
+
     def display_rect(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
         """Camera pixels ``(x, y, w, h)`` where an input of ``size = (w, h)`` appears."""
         return self.calib.display_rect(size)

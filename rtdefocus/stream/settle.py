@@ -17,9 +17,11 @@ a cut.
 
 The settle runs beside the loop only where the Compensator solves a warped frame itself
 (``compensate_warped`` defined on its class: a wrapper that paces ``compensate`` and forwards
-the rest would run it unpaced), its OpenCL context does not share the warp's GL context
-(``shares_gl``: there the warp's renderbuffer is an OpenCL image, and the two threads would
-share it), frames are read on a thread of their own and no watcher swaps the calibration or
+the rest would run it unpaced), it solves off the CPU (``solves_off_the_cpu``: a solve on the
+CPU cores, NumPy or an OpenCL CPU device, would take them from the warps of the frames shown
+meanwhile, and a fast frame rate loses frames to it), its OpenCL context does not share the
+warp's GL context (``shares_gl``: there the warp's renderbuffer is an OpenCL image, and the two
+threads would share it), frames are read on a thread of their own and no watcher swaps the calibration or
 takes frames; elsewhere the settle runs on the loop's thread as a compensated frame.
 """
 
@@ -74,6 +76,7 @@ class BackgroundSettle:
         comp = p.comp
         return (p.threads and p.watcher is None
                 and callable(getattr(type(comp), "compensate_warped", None))
+                and getattr(comp, "solves_off_the_cpu", False)
                 and not getattr(comp, "shares_gl", False))
 
     def start(self, frame: Frame, iterations: int | None, t_start: float) -> bool:
