@@ -213,19 +213,18 @@ class SlowedCompensator:
     def _times(self, seconds: dict | None) -> dict:
         return {k: v * self.factor for k, v in (seconds or {}).items()}
 
-    def compensate(self, image, **kw):
+    def _slowed(self, solve, image, **kw):
         t0 = time.perf_counter()
-        out = self.comp.compensate(image, **kw)
+        out = solve(image, **kw)
         time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
         self.last_info = self._scaled(self.comp.last_info)
         return out
 
+    def compensate(self, image, **kw):
+        return self._slowed(self.comp.compensate, image, **kw)
+
     def compensate_warped(self, warped, **kw):
-        t0 = time.perf_counter()
-        out = self.comp.compensate_warped(warped, **kw)
-        time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
-        self.last_info = self._scaled(self.comp.last_info)
-        return out
+        return self._slowed(self.comp.compensate_warped, warped, **kw)
 
     def warm_up(self, iterations: int = 1, frames: int = 1):
         return self._scaled(self.comp.warm_up(iterations=iterations, frames=frames))
