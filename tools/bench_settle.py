@@ -4,7 +4,8 @@
 Plays a still of ``--still`` frames then a slow pan of 10 (the clip of ``rtdefocus eval
 --video``'s first two segments, 800x600, cubicle, oracle kernels) live at ``--fps`` through the
 real player as the eval's window rows do (``eval_video.play_window``), on a device K times
-slower (``--slowdown``): ``beside`` (the settle on its worker thread), ``on the loop`` (the
+slower (``--slowdown``): ``beside`` (the settle on its worker thread, forced there also where
+the solver runs on the CPU: ``BackgroundSettle.available`` made true), ``on the loop`` (the
 settle where the loop waits for it: ``BackgroundSettle.available`` made false) and the
 geometry-only window. A still about as long as it takes for a settle to be admitted (about 45
 frames at 30 fps, 4x slower, on 2 CPU cores) makes a settle that spans the cut likely.
@@ -47,8 +48,8 @@ def main() -> None:
     for run in range(1, args.runs + 1):
         for k in (float(x) for x in args.slowdown.split(",")):
             for row in ("beside", "on the loop", "geometry only"):
-                settle.BackgroundSettle.available = (
-                    available if row == "beside" else lambda self: False)
+                beside = row == "beside"
+                settle.BackgroundSettle.available = lambda self, beside=beside: beside
                 shown, st = ev.play_window(calib, "auto", clip, args.fps, slowdown=k,
                                            geometry_only=row == "geometry only")
                 still = [i for i in range(args.still) if i in shown and shown[i][1] > 0]
