@@ -40,8 +40,9 @@ margin, would end after the frame after next has arrived is shown with geometry 
 (``catch_up``; see :mod:`rtdefocus.stream.catch_up`; a still picture's one compensation, its
 settle, is solved beside the loop where the solver is off the CPU:
 :mod:`rtdefocus.stream.settle`): a warp costs a fraction of a solve, so the loop keeps up
-instead of dropping the next frame and leaving a late one on the screen (on moving content a repeated frame looks far worse than an uncompensated fresh one;
-``stats.geometry_frames`` counts them). Before the first frame a live player runs the
+instead of dropping the next frame and leaving a late one on the screen (on moving content a
+repeated frame looks far worse than an uncompensated fresh one; ``stats.geometry_frames``
+counts them). Before the first frame a live player runs the
 Compensator's video path once (:meth:`~rtdefocus.Compensator.warm_up`), so that the first moving
 frame neither pays first-use costs nor is timed from a still picture's.
 
