@@ -251,6 +251,35 @@ def test_a_look_that_sees_the_geometry_move_shows_geometry_only_until_the_next_s
     assert trusted == [True] * 12 + [False] * 4 and w.untrusted_frames == 3
 
 
+def test_a_knocked_camera_mends_the_model_and_the_show_keeps_its_picture():
+    """The camera knocked: the watcher's model follows the moved camera, and the update hands
+    the show the calibration it runs with (the same object: its picture stays where it was on
+    the wall). A later light mend reaches the show in the original camera's pixels: the
+    original's geometry, the mended light."""
+    pc, calib = setup()
+    clock, updates = [0.0], []
+    w = Watcher(calib, camera_view(pc), clock=lambda: clock[0], threaded=False)
+    timeline = sim.Timeline([(CHANGE_AT, "bump", {"camera_shift_px": 4.0}),
+                             (3.0, "set_light", {"ambient": pc.ambient + 0.1})])
+    for i in range(int(5.0 * FPS)):
+        clock[0] = i / FPS
+        timeline.advance(pc, clock[0])
+        upd = w.poll()
+        if upd is not None:
+            updates.append(upd)
+        w.offer(content(i))
+    kinds = [u.kinds for u in updates]
+    assert kinds[0] == ("geometry",) and ("light",) in kinds, kinds
+    camera, light = updates[0], updates[kinds.index(("light",))]
+    assert camera.calibration is calib
+    assert cam_error(w.calib, sim.oracle_calibration(pc)) < 1.5 * MEASURED[("cubicle", "camera")]
+    assert cam_error(calib, w.calib) > 3.0                # the model's camera moved
+    assert light.calibration is not calib and light.calibration is not w.calib
+    assert cam_error(light.calibration, calib) < 1e-6     # the show's geometry kept
+    assert light.calibration.display_rect(PROJ) == calib.display_rect(PROJ)
+    assert np.allclose(light.calibration.ambient_proj, w.calib.ambient_proj)
+
+
 def test_plain_frames_say_nothing_and_raise_no_alarm():
     """Black, grey and white frames (a fade, a title card) cannot tell gain from added light
     nor show blur: the watcher neither suspects nor clears anything on them."""

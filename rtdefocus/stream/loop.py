@@ -557,7 +557,7 @@ class Player:
     def _apply_watch(self) -> None:
         """Between two frames: the watcher's mended calibration, as a new Compensator."""
         update = self.watcher.poll() if self.watcher is not None else None
-        if update is not None:
+        if update is not None and update.calibration is not getattr(self.comp, "calib", None):
             self.comp = self._refiner.comp = self.comp.with_calibration(update.calibration)
             log.info("calibration updated by the watcher (%s)", ", ".join(update.kinds))
 

@@ -63,8 +63,7 @@ class DriftShow:
 
     def __init__(self, procam, rect, iterations: int, backend: str):
         self.procam, self.rect = procam, rect
-        x, y, w, h = (int(v) for v in rect)
-        self.crop = np.s_[max(0, y):max(0, y + h), max(0, x):max(0, x + w)]
+        self.crop = _crop(rect)
         self.iterations, self.backend = iterations, backend
         self.comps: dict[int, tuple] = {}
         self._noise: dict = {}       # (False, frame key) -> that view's camera noise
@@ -87,21 +86,25 @@ class DriftShow:
             self._image_key = (image, frame_key(image))
         return self._image_key[1]
 
-    def warp(self, calib, image) -> np.ndarray:
-        """The geometry-corrected frame (the last one again while the content repeats)."""
-        k, key = id(calib), self._key_of(image)
+    def warp(self, calib, image, rect=None) -> np.ndarray:
+        """The geometry-corrected frame in camera rectangle ``rect`` (default :attr:`rect`; the
+        last one again while the content and the rectangle repeat)."""
+        rect = tuple(int(v) for v in (self.rect if rect is None else rect))
+        k, key = id(calib), (self._key_of(image), rect)
         hit = self._warps.get(k)
         if hit is None or hit[0] is not calib or hit[1] != key:
-            hit = self._warps[k] = (calib, key, warp_image(calib, image, rect=self.rect))
+            hit = self._warps[k] = (calib, key, warp_image(calib, image, rect=rect))
         return hit[2]
 
-    def compensate(self, calib, image) -> np.ndarray:
+    def compensate(self, calib, image, rect=None) -> np.ndarray:
+        """The compensated frame of ``image`` in ``rect`` (see :meth:`warp`), solved once per
+        calibration and frame."""
         k = id(calib)
         if k not in self._comped:
             if k not in self.comps:
                 self.comps[k] = (calib, Compensator(calib, backend=self.backend))
             self._comped[k] = self.comps[k][1].compensate_warped(
-                self.warp(calib, image), iterations=self.iterations, warm_start=True)
+                self.warp(calib, image, rect), iterations=self.iterations, warm_start=True)
         return self._comped[k]
 
     def keep_only(self, calibs) -> None:
@@ -136,6 +139,13 @@ class DriftShow:
         if key not in self._noise:
             self._noise[key] = self.procam.skip_capture()
 
-    def score(self, frame, reference) -> float:
-        # Inside the display rectangle (as rect_mask, by slicing).
-        return psnr(self.view(frame)[self.crop], reference[self.crop])
+    def score(self, frame, reference, rect=None) -> float:
+        """PSNR of ``frame``'s camera view against ``reference`` inside camera rectangle
+        ``rect`` (default :attr:`rect`; as rect_mask, by slicing)."""
+        crop = self.crop if rect is None else _crop(rect)
+        return psnr(self.view(frame)[crop], reference[crop])
+
+
+def _crop(rect):
+    x, y, w, h = (int(v) for v in rect)
+    return np.s_[max(0, y):max(0, y + h), max(0, x):max(0, x + w)]

@@ -24,11 +24,16 @@ per frame (``Compensator.compensate_warped(..., warm_start=True)``, as the fixed
 ``eval --video``), not the player's real-time budget, so that the figures do not depend on this
 machine's load.
 
-The picture stays where it was: every row shows the clip in the camera rectangle ``R0`` where
-the original calibration put it, and the reference is the sharp capture (no blur, no noise)
-of the oracle's warp into ``R0`` at the current truth, scored inside ``R0`` in the truth's
-ideal camera pixels (camera-view PSNR, as ``eval --video``). A stale geometry therefore shows
-as misplaced content, a stale blur or light model as a worse compensation.
+The picture stays where it was on the wall: every row shows the clip in the camera rectangle
+``R0`` where the original calibration put it, in the original camera's pixels. A knocked
+camera moves its view, not the wall: the oracle row shows the truth re-expressed in those
+pixels, and the watcher hands the show the calibration it runs with (its own model follows the
+moved camera). The reference is the sharp capture (no blur, no noise) of the oracle's warp at
+the current truth, scored in the truth's ideal camera pixels inside the rectangle where the
+camera now sees ``R0`` (``R0`` itself until the camera moves; camera-view PSNR, as ``eval
+--video``). A stale geometry therefore shows as misplaced content, a stale blur or light model
+as a worse compensation, and a knocked camera changes nothing the audience sees until the
+watcher acts on it.
 
 Scoring every frame renders up to five camera views per frame, the largest cost at 800×600;
 with ``score_every`` a play scores every frame for ``full_rate_s`` after each event and every
@@ -55,6 +60,7 @@ from ..errors import InputError
 from ..sim import Timeline, oracle_calibration
 from ..watch import Watcher
 from ..watch import camera_view as watch_look
+from ..watch.mend import mend_camera
 from .drift_show import DriftShow, scored_frames
 from .eval_video import Segment, make_clip
 from .evalreport import write_report
@@ -162,12 +168,16 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
     wp, hp = procam.projector_size
     rect = original.display_rect((wp, hp))
     show = DriftShow(procam, rect, iterations, backend)
+    pose = _camera_pose(procam)
     clip = clip or make_clip((wp, hp), drift_segments(fps))
     n = int(round(duration_s * fps))
     scored = scored_frames(n, fps, [e.t for e in timeline.events], score_every, full_rate_s)
     clock = _ShowClock()
     watcher = _new_watcher(original, procam, clock, watcher_options) if "watch" in rows else None
-    oracle = watch_calib = original
+    # The picture's place on the wall is R0 in the original camera's pixels: the oracle row and
+    # the reference show the truth there, and it is scored where the camera now sees it.
+    oracle = oracle_here = watch_calib = original
+    score_rect = rect
     applied, updates, records = [], [], []
     say(f"drift: {n} frames at {fps:g} fps ({duration_s:g} s of show), {wp}x{hp} {preset}, "
         f"{len(timeline)} event(s), rows {', '.join(rows)}")
@@ -178,6 +188,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             applied.append({"t": t, "kind": ev.kind, "params": ev.params, "frame": i})
             show.changed()
             oracle = show.truth
+            oracle_here, score_rect = _in_original_camera(oracle, original, procam, pose, (wp, hp))
             say(f"  {t:6.2f} s: {ev.kind} {ev.params}")
         if watcher is not None:
             upd = watcher.poll()
@@ -193,7 +204,7 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             if row == "none":
                 frames[row] = show.compensate(original, image)
             elif row == "oracle":
-                frames[row] = show.compensate(oracle, image)
+                frames[row] = show.compensate(oracle_here, image)
             elif row == "geometry":
                 frames[row] = show.warp(watch_calib, image)
             elif pattern is not None:
@@ -203,18 +214,18 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
                                else show.warp(watch_calib, image))
         rec = {"frame": i, "t": t, "segment": seg, "psnr": {}}
         if scored[i]:
-            reference = show.view(show.warp(oracle, image), sharp=True)
-            rec["psnr"] = {row: show.score(frames[row], reference) for row in rows}
+            reference = show.view(show.warp(oracle_here, image), sharp=True)
+            rec["psnr"] = {row: show.score(frames[row], reference, score_rect) for row in rows}
         else:
             for row in rows:
                 show.skip_view(frames[row])
         if watcher is not None:
             rec["trusted"] = bool(watcher.trusted)
             rec["pattern"] = pattern is not None
-            rec["watch_geometry_px"] = geometry_error_px(watch_calib, oracle)
+            rec["watch_geometry_px"] = geometry_error_px(watcher.calib, oracle)
             watcher.offer(frames["watch"], image)
         records.append(rec)
-        show.keep_only((original, oracle, watch_calib))
+        show.keep_only((original, oracle_here, watch_calib))
         if i % max(1, int(fps)) == 0 and rec["psnr"]:
             say(f"  {t:6.2f} s: " + ", ".join(f"{r} {rec['psnr'][r]:.2f}" for r in rows) + " dB")
     return {"preset": preset, "size": (wp, hp), "camera_size": tuple(procam.camera_size),
@@ -223,6 +234,23 @@ def play_drift(preset: str = "cubicle", size=(800, 600), fps: float = 30.0,
             "updates": updates, "records": records,
             "watch_events": [_as_dict(e) for e in (watcher.events if watcher else ())],
             "backend": next(iter(show.comps.values()))[1].backend if show.comps else backend}
+
+
+def _camera_pose(procam) -> tuple[np.ndarray, np.ndarray]:
+    """The virtual camera's intrinsics and rotation (a knock turns it about its centre)."""
+    return np.array(procam.K_cam, np.float64), np.array(procam.R_cam, np.float64)
+
+
+def _in_original_camera(truth, original, procam, pose, size):
+    """The truth re-expressed in the original camera's pixels (what the picture's place on the
+    wall, R0 there, needs: the camera knocked moves its view, not the wall) and the camera
+    rectangle where that place is now seen (scored there). ``pose``: the camera's at the start."""
+    K, R0 = pose
+    G = K @ np.asarray(procam.R_cam, np.float64) @ R0.T @ np.linalg.inv(K)
+    G /= G[2, 2]
+    if np.allclose(G, np.eye(3), atol=1e-9):
+        return truth, original.display_rect(size)
+    return mend_camera(truth, np.linalg.inv(G)), mend_camera(original, G).display_rect(size)
 
 
 def geometry_error_px(calib, truth) -> float:

@@ -90,6 +90,21 @@ def mend_camera(calib: Calibration, shift_cam) -> Calibration:
                    folds_cam=folds_cam, lit_polygon_cam=apply_h(C, calib.lit_polygon_cam))
 
 
+def camera_correction(old: Calibration, new: Calibration) -> np.ndarray | None:
+    """The camera homography ``C`` (old camera px -> new) when ``new`` is ``old`` after a camera
+    mend alone (:func:`mend_camera`: one ``C`` for every plane, the projector's folds
+    unchanged); None for any other change, or none."""
+    if not np.array_equal(np.asarray(old.folds_proj), np.asarray(new.folds_proj)):
+        return None
+    cs = [n @ np.linalg.inv(o) for o, n in zip(old.H_cam_from_proj, new.H_cam_from_proj,
+                                               strict=True)]
+    cs = [c / c[2, 2] for c in cs]
+    if (not all(np.allclose(c, cs[0], atol=1e-6) for c in cs)
+            or np.allclose(cs[0], np.eye(3), atol=1e-9)):
+        return None
+    return cs[0]
+
+
 def _shift_per_plane(field: np.ndarray, plane: np.ndarray, motions: np.ndarray,
                      nearest: bool) -> np.ndarray:
     """``field`` (Hp, Wp[, C]) resampled so that pixel y of plane p takes the old value at

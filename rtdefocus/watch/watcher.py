@@ -24,7 +24,9 @@ geometry only; a look that does not confirm it puts the compensation back):
   per plane with the folds kept consistent (:mod:`~rtdefocus.watch.mend`); which of the two it
   was is decided by which single homography (in camera or in projector pixels) explains the
   planes' content warps better, and the mend is then refined to a few hundredths of a pixel by
-  direct alignment of the content (:mod:`~rtdefocus.watch.refit`);
+  direct alignment of the content (:mod:`~rtdefocus.watch.refit`). A camera move changes
+  nothing on the wall: it mends the model the looks are judged with (:attr:`Watcher.calib`),
+  and the show keeps its calibration, its picture where it was;
 * focus: every kernel's radius rescaled by the factor that brings the band-pass ratio back to
   its level while the model was right (:func:`~rtdefocus.watch.mend.rescale_radii`).
 
@@ -60,7 +62,7 @@ from ..errors import InputError, RtDefocusError
 from .burst import BURSTS, Burst, BurstOptions, BurstRunner
 from .focus import fit_band_scale
 from .levels import BandLevels, band_level, content_informs
-from .mend import mend_light, rescale_radii
+from .mend import camera_correction, mend_camera, mend_light, rescale_radii
 from .refit import mend_geometry
 from .residual import ResidualReport, residual_report
 
@@ -106,7 +108,10 @@ class WatchUpdate:
 
     Attributes
     ----------
-    calibration : the new calibration (a new object; the previous one is left as it was).
+    calibration : the calibration the show runs with from now: a new object, or the one it
+        runs with already where only the camera moved (the picture stays where it was on the
+        wall; :attr:`Watcher.calib`, the model seen by the moved camera, differs from it by
+        that move).
     kinds : what changed, e.g. ("geometry",).
     trusted : whether the model was trusted when the update was made (a fresh mend is not
         yet: the next look checks it).
@@ -204,6 +209,10 @@ class Watcher:
         if confirm < 1:
             raise InputError(f"confirm must be >= 1; got {confirm!r}")
         self.calib = calib
+        # A knocked camera moves its view, not the wall: the calibration the show runs with
+        # (_show_calib) keeps its picture where it was, in the original camera's pixels, and the
+        # model the looks are judged with (calib) is that one seen by the moved camera.
+        self._show_calib, self._camera_moved = calib, np.eye(3)
         self.look = look
         self.period_s = float(period_s)
         self.recheck_s = self.period_s if recheck_s is None else float(recheck_s)
@@ -512,12 +521,18 @@ class Watcher:
             # compensated frame's spectrum): it is measured again with the new kernels, and
             # until then focus is not judged.
             self._band_base.clear()
+        moved = camera_correction(self.calib, new)
         self.calib = new
+        if moved is not None:        # the show's picture stays; only the model's camera moved
+            self._camera_moved = moved @ self._camera_moved
+        else:
+            self._show_calib = new if np.array_equal(self._camera_moved, np.eye(3)) else mend_camera(
+                new, np.linalg.inv(self._camera_moved))
         self._event(t, kind, "mend", detail, patterns)
         with self._lock:
             kinds = (kind,) if self._pending is None else tuple(dict.fromkeys(
                 (*self._pending.kinds, kind)))
-            self._pending = WatchUpdate(new, kinds, False, t)
+            self._pending = WatchUpdate(self._show_calib, kinds, False, t)
 
     def _estimate(self, kind: str, reports: list[ResidualReport], shown: np.ndarray,
                   capture: np.ndarray) -> tuple[Calibration | None, dict]:
