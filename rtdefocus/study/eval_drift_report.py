@@ -38,7 +38,8 @@ def drift_markdown(result: dict) -> str:
         f"{s['iterations']} warm-started iterations per frame ({s['backend']}; "
         f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, load average {load}). "
         "Camera-view PSNR against the sharp capture of the oracle's warp, inside the display "
-        "rectangle of the original calibration (the picture stays where it was). "
+        "rectangle of the original calibration (the picture stays where it was on the wall; "
+        "after a camera knock, scored where the camera now sees it). "
         + ("Each event on a fresh set-up of its own (2 s of show, the event, "
            f"{s['duration_s'] / max(1, len(s['scheduled'])) - 2:g} s to recover), the plays laid "
            "end to end." if s.get("separate") else "One set-up, changed event after event.")
