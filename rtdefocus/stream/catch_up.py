@@ -53,9 +53,11 @@ CATCH_UP_FRESH = 2
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
 #: long as that compensation takes with the safety margin. The live player solves it beside the
-#: frame loop where it can (:mod:`rtdefocus.stream.settle`: no frame is dropped for it, and its
-#: result is dropped if the picture changes first); on the loop, the frames it drops are copies
-#: of the picture unless the picture changes during it. Either way a still that lasted that
+#: frame loop where the frames shown meanwhile keep their period (:mod:`rtdefocus.stream.settle`:
+#: a solver off the CPU, or on the CPU where the loop's measured work for a geometry-only frame
+#: leaves the room; no frame is dropped for it, and its result is dropped if the picture changes
+#: first); on the loop, the frames it drops are copies of the picture unless the picture
+#: changes during it. Either way a still that lasted that
 #: long seldom ends during it, so the work (which shares the device with the warps) is seldom
 #: wasted. Before it the picture is shown with geometry only, after it as compensated (refined
 #: further only where a refinement fits two periods).

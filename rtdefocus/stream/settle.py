@@ -48,10 +48,11 @@ log = logging.getLogger(__name__)
 
 #: A settle beside the loop on a CPU device: the loop's geometry-only frame, while a solve
 #: uses every core, gets about half of the CPU (the solve's threads and the loop's share the
-#: cores), so it takes SETTLE_CPU_SHARE times as long as measured without a solve beside it;
-#: that, times SETTLE_CPU_HEADROOM, must fit one frame period. Measured on 2 PoCL cores: a
-#: settle beside the loop kept every frame at 24 and 30 fps (a geometry-only frame 7-10 ms),
-#: and lost moving frames at 60 fps (a 16.7 ms period: the rule keeps it on the loop there).
+#: cores), so it takes SETTLE_CPU_SHARE times the work measured without a solve beside it
+#: (:meth:`BackgroundSettle.timed`); that, times SETTLE_CPU_HEADROOM, must fit one frame period.
+#: On 2 PoCL cores an 800x600 geometry-only frame is 17-19 ms of CPU, 9-10 ms a core: 24 ms
+#: with both factors, so beside the loop at 24 and 30 fps, where a settle there kept every
+#: frame in 3 idle runs, and on the loop at 60 fps, where one there lost moving frames.
 SETTLE_CPU_SHARE, SETTLE_CPU_HEADROOM = 2.0, 1.25
 #: ... the geometry-only frames it is measured on (the last SETTLE_CPU_FRAMES shown without a
 #: settle beside them, at least SPREAD_MIN), and the quantile of their costs taken.
