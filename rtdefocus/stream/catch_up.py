@@ -57,10 +57,10 @@ CATCH_UP_FRESH = 2
 #: a solver off the CPU, or on the CPU where the loop's measured work for a geometry-only frame
 #: leaves the room; no frame is dropped for it, and its result is dropped if the picture changes
 #: first); on the loop, the frames it drops are copies of the picture unless the picture
-#: changes during it. Either way a still that lasted that
-#: long seldom ends during it, so the work (which shares the device with the warps) is seldom
-#: wasted. Before it the picture is shown with geometry only, after it as compensated (refined
-#: further only where a refinement fits two periods).
+#: changes during it. Either way a still that lasted that long seldom ends during it, so the
+#: work (which shares the device with the warps) is seldom wasted. Before it the picture is
+#: shown with geometry only, after it as compensated (refined further only where a refinement
+#: fits two periods).
 CATCH_UP_STILL_WAIT = 4
 #: Moving frames a live player's warm-up times (:meth:`rtdefocus.Compensator.warm_up`): the
 #: first sets the expected cost, the others measure its spread (SPREAD_MIN of them), so the

@@ -85,6 +85,7 @@ class BackgroundSettle:
         #: Settles whose result was dropped (the picture changed before it was done).
         self.dropped = 0
         self._geometry: deque[float] = deque(maxlen=SETTLE_CPU_FRAMES)   # seconds each
+        self._cores = _cores()
 
     @property
     def busy(self) -> bool:
@@ -109,7 +110,7 @@ class BackgroundSettle:
         wall: a vsync wait or a core waking from idle takes no core from a solve). Frames
         shown while a settle runs beside the loop are left out (they share the cores)."""
         if self._job is None:
-            spread = (time.process_time() - process0) / _cores()
+            spread = (time.process_time() - process0) / self._cores
             self._geometry.append(max(spread, time.thread_time() - thread0))
 
     def geometry_cost(self) -> float | None:
