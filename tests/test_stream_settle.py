@@ -84,14 +84,17 @@ def play_settle(comp, still, moving, **device):
 
 
 @pytest.mark.parametrize("cpu", [False, True], ids=["off the cpu", "on the cpu with room"])
-def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated(comp, cpu):
+def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated(comp, cpu,
+                                                                                monkeypatch):
     """A still of 45 frames then 12 moving ones at 30 fps on a device too slow for moving
     frames: the still is settled on a worker thread while the loop shows at least 3 more
     frames; once done, the still's next frames show the settle's result (not its geometry
     only), and no frame after the still does; no frame is lost (only copies of the still may
     be dropped), every moving frame is shown with geometry only, and the worker is gone when
     the show ends. So on a device off the CPU, and on one on the CPU where the loop's work for
-    a geometry-only frame (a 64x48 warp, well under a millisecond) leaves the room."""
+    a geometry-only frame (a 64x48 warp, well under a millisecond) leaves the room. The
+    Compensator is left as after compensating the still: a refinement of it (``compensate``)
+    continues its solve without warping it again."""
     still, moving = 45, 12
     dev, player, stats, frames = play_settle(comp, still, moving, frames_during=3, cpu=cpu)
     assert player._settle.room_on_the_cpu() or not cpu
@@ -108,6 +111,10 @@ def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated
     for i in range(still, still + moving):
         assert np.array_equal(shown[i], comp.warp(frames[i])), i
     assert player._settle.dropped == 0
+    warps, warp = [], comp.warp
+    monkeypatch.setattr(comp, "warp", lambda image: warps.append(image) or warp(image))
+    comp.compensate(frames[0], iterations=1)
+    assert warps == [] and comp.last_info["start"] == "still", comp.last_info.get("start")
 
 
 def test_a_settle_that_ends_after_the_picture_changed_is_not_shown(comp):

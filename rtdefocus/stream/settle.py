@@ -143,7 +143,7 @@ class BackgroundSettle:
         warp_s = time.perf_counter() - t0
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rtdefocus-settle")
-        future = self._pool.submit(_solve, p.comp, warped, iterations, warp_s)
+        future = self._pool.submit(_solve, p.comp, warped, iterations, warp_s, frame.image)
         self._job = _Job(future, p.comp, p.controls.version, frame.index, warped)
         log.debug("settle of frame %d started beside the loop (%d iterations; a geometry-only "
                   "frame %.1f ms)", frame.index, iterations or 0,
@@ -214,11 +214,12 @@ class BackgroundSettle:
             self._pool = None
 
 
-def _solve(comp, warped: np.ndarray, iterations: int | None, warp_s: float):
+def _solve(comp, warped: np.ndarray, iterations: int | None, warp_s: float, image: np.ndarray):
     """The worker: the settle's solve; returns its output, its info (with the warp's time,
-    made on the loop's thread) and its cost (warp and solve, as this thread measured it)."""
+    made on the loop's thread) and its cost (warp and solve, as this thread measured it). The
+    Compensator keeps ``image``'s warp, so that the still's refinements skip it."""
     t0 = time.perf_counter()
-    out = comp.compensate_warped(warped, iterations=iterations)
+    out = comp.compensate_warped(warped, iterations=iterations, image=image)
     info = dict(getattr(comp, "last_info", None) or {})
     info["seconds"] = {**(info.get("seconds") or {}), "warp": warp_s}
     return out, info, warp_s + time.perf_counter() - t0
