@@ -12,8 +12,9 @@ at no cost) and starts no compensation (the device is busy). At the first frame 
 worker is done, the result is shown if that frame is still the same picture (and the display
 mode and calibration did not change); otherwise it is dropped, never shown on another picture.
 The Compensator's video state is then that of the still, as after a settle on the loop's
-thread: the next compensated frame starts from it by the motion, or cold where the motion finds
-a cut.
+thread: the still's refinements continue its solve and skip its warp (the Compensator keeps it:
+``compensate_warped(image=)``), and the next compensated frame starts from it by the motion, or
+cold where the motion finds a cut.
 
 The settle runs beside the loop only where the Compensator solves a warped frame itself
 (``compensate_warped`` defined on its class: a wrapper that paces ``compensate`` and forwards
