@@ -149,7 +149,10 @@ def test_a_solve_on_the_cpu_settles_beside_the_loop_only_where_the_loop_leaves_r
     frames shown meanwhile: it settles beside the loop only once the loop's work for a
     geometry-only frame is measured and, taken SETTLE_CPU_SHARE times with SETTLE_CPU_HEADROOM,
     fits one period: 20 ms of a frame's own thread does not at 30 fps (50 ms > 33 ms), does at
-    10 fps (100 ms); a solver off the CPU (an OpenCL GPU) settles beside it in any case."""
+    10 fps (100 ms). Where it does not, no settle is made at all (a settle on the loop's thread
+    would hold the loop as long); a player that cannot settle beside the loop for its own reason
+    (frames read on the loop's thread) settles on the loop. A solver off the CPU (an OpenCL
+    GPU) settles beside it in any case."""
     from rtdefocus.cl.runtime import get_runtime
     from rtdefocus.stream.controls import SPREAD_MIN
 
@@ -162,7 +165,10 @@ def test_a_solve_on_the_cpu_settles_beside_the_loop_only_where_the_loop_leaves_r
             assert not settle.available()                # (not measured yet)
             settle.timed(time.process_time(), time.thread_time() - 0.020)
         assert settle.geometry_cost() >= 0.020
-        assert settle.available() == room, fps
+        assert settle.available() == settle.may_settle() == room, fps
+    # a player whose settle cannot run beside the loop for its own reason settles on the loop
+    inline = Player(cpu, source, RecordingSink(realtime=True), threads=False)
+    assert not BackgroundSettle(inline).available() and BackgroundSettle(inline).may_settle()
     if comp.backend == "opencl":
         assert comp.solves_off_the_cpu == get_runtime().is_gpu
         player = Player(comp, source, RecordingSink(realtime=True))
@@ -170,15 +176,17 @@ def test_a_solve_on_the_cpu_settles_beside_the_loop_only_where_the_loop_leaves_r
                                                         and not comp.shares_gl)
 
 
-def test_a_settle_on_the_cpu_without_room_runs_on_the_loop(comp):
+def test_a_cpu_device_without_room_makes_no_settle(comp):
     """Through the real player at 30 fps, a device on the CPU whose geometry-only frame burns
     20 ms of the loop's thread (50 ms with a solve beside it and the headroom: over the 33 ms
-    period): the still's settle is compensated on the loop's thread, never beside it, and the
-    loop measured that frame's work (at least the 20 ms burnt)."""
+    period): the loop measured that frame's work (at least the 20 ms burnt), and the still is
+    settled neither beside the loop nor on its thread (which would hold the loop as long): it
+    stays at geometry only, every frame of it."""
     dev, player, stats, frames = play_settle(comp, 40, 4, cpu=True, warp_cpu=0.020)
     assert player._settle.geometry_cost() >= 0.020
-    assert not player._settle.room_on_the_cpu()
-    assert dev.threads == [], "the settle ran beside the loop"
-    assert dev.compensate_threads and all(t is threading.main_thread()
-                                          for t in dev.compensate_threads)
-    assert stats.iterations.count >= 1, stats.summary()
+    assert not player._settle.room_on_the_cpu() and not player._settle.may_settle()
+    assert dev.threads == [] and dev.compensate_threads == [], "a settle was made"
+    assert stats.iterations.count == 0, stats.summary()
+    geometry = comp.warp(frames[0])
+    shown = dict(zip(player.sink.indices, player.sink.frames, strict=True))
+    assert all(np.array_equal(shown[i], geometry) for i in range(40) if i in shown)

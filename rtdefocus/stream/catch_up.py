@@ -126,7 +126,7 @@ class CatchUp:
         self._still_since, self._settled = index, False
 
     def decide(self, frame: Frame, iterations: int, still: bool, repeat: bool,
-               can_reshow: bool) -> tuple[str, int | None]:
+               can_reshow: bool, can_settle=None) -> tuple[str, int | None]:
         """What to show for ``frame``, as ``(action, n)``.
 
         ``("compensate", n)`` with the iterations n (at most ``iterations``) whose expected
@@ -139,8 +139,9 @@ class CatchUp:
         ``("reshow", None)`` once it is compensated (``repeat`` and ``can_reshow``: its last
         output again, at no cost); before that, once, ``("settle", n)`` (compensate, though it
         may take several periods: beside the frame loop where the player can) where the
-        picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else
-        ``("geometry", None)``. Without measured costs: ``("compensate", iterations)``."""
+        picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long as that takes and
+        ``can_settle()`` (a callable; None: always) allows it, else ``("geometry", None)``.
+        Without measured costs: ``("compensate", iterations)``."""
         b = self.budget
         self._fresh = 0 if still else self._fresh + 1
         rest = b.frame_seconds(0, repeat, deadline=True)
@@ -164,7 +165,7 @@ class CatchUp:
             lasted = (frame.index - self._still_since) * b.period
             room = lasted / (CATCH_UP_STILL_WAIT * margin) - rest
             n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
-            if not self._settled and n >= b.minimum:
+            if not self._settled and n >= b.minimum and (can_settle is None or can_settle()):
                 self._settled = True
                 return "settle", min(iterations, n)
             return "geometry", None

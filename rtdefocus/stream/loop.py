@@ -375,7 +375,8 @@ class Player:
                 or self.controls.mode != "full"):
             return "compensate", iterations
         return self._catch_up.decide(frame, iterations, still, repeat,
-                                     can_reshow=self._last_out is not None)
+                                     can_reshow=self._last_out is not None,
+                                     can_settle=self._settle.may_settle)
 
     def _warm_up(self) -> None:
         """Live playback with an adaptive budget: run the Compensator's video path before the

@@ -93,15 +93,29 @@ class BackgroundSettle:
         """A settle is in progress or its result not yet taken."""
         return self._job is not None
 
-    def available(self) -> bool:
-        """The settle can run beside the loop (see the module)."""
+    def _may_run_beside(self) -> bool:
+        """All but the room: a player and Compensator whose settle may run beside the loop."""
         p = self.player
         comp = p.comp
-        if not (p.threads and p.watcher is None
+        return (p.threads and p.watcher is None
                 and callable(getattr(type(comp), "compensate_warped", None))
-                and not getattr(comp, "shares_gl", False)):
-            return False
-        return bool(getattr(comp, "solves_off_the_cpu", False)) or self.room_on_the_cpu()
+                and not getattr(comp, "shares_gl", False))
+
+    def available(self) -> bool:
+        """The settle can run beside the loop (see the module)."""
+        return self._may_run_beside() and (
+            bool(getattr(self.player.comp, "solves_off_the_cpu", False))
+            or self.room_on_the_cpu())
+
+    def may_settle(self) -> bool:
+        """A settle may be made now (the catch-up asks before it settles a still): beside the
+        loop where it can run there (:meth:`available`); on the loop's thread where it cannot
+        for a reason of the player's (no decoder thread, a watcher, a shared GL context, a
+        wrapper); never on a CPU device whose frame period leaves it no room beside the loop
+        (:meth:`room_on_the_cpu`, also while that is not measured yet): there the still stays
+        at geometry only, since a settle on the loop's thread would hold the loop as long, and
+        one that spans a cut would lose the new shot's first frames."""
+        return self.available() or not self._may_run_beside()
 
     def timed(self, process0: float, thread0: float) -> None:
         """After a frame the loop showed with geometry only: its work, from its CPU clocks
