@@ -5,9 +5,10 @@ Plays a still of ``--still`` frames then a slow pan of 10 (the clip of ``rtdefoc
 --video``'s first two segments, 800x600, cubicle, oracle kernels) live through the real player
 as the eval's window rows do (``eval_video.play_window``), at each ``--fps`` on a device K
 times slower (``--slowdown``): ``rule`` (the player's own choice,
-``BackgroundSettle.available``), ``beside`` (the settle on its worker thread, forced there also
-where the solver runs on the CPU: ``available`` made true), ``on the loop`` (the settle where
-the loop waits for it: ``available`` made false) and the geometry-only window. A still about as
+``BackgroundSettle.available`` and ``may_settle``: beside the loop, or no settle), ``beside``
+(the settle on its worker thread, forced there also where the solver runs on the CPU:
+``available`` made true), ``on the loop`` (the settle where the loop waits for it:
+``available`` made false, ``may_settle`` true) and the geometry-only window. A still about as
 long as it takes for a settle to be admitted (about 45 frames at 30 fps, 4x slower, on 2 CPU
 cores) makes a settle that spans the cut likely.
 
@@ -46,7 +47,7 @@ def main() -> None:
     clip = ev.make_clip((800, 600), (ev.Segment("still", "still", args.still),
                                      ev.Segment("slow pan", "pan", 10, 3.0)))
     cls = settle.BackgroundSettle
-    available, start = cls.available, cls.start
+    available, start, may_settle = cls.available, cls.start, cls.may_settle
     where: list[str] = []
 
     def recording_start(self, frame, iterations, t_start):
@@ -66,6 +67,7 @@ def main() -> None:
                     for row in args.rows.split(","):
                         cls.available = available if row == "rule" else (
                             lambda self, beside=row == "beside": beside)
+                        cls.may_settle = may_settle if row == "rule" else (lambda self: True)
                         cls.start = recording_start
                         where.clear()
                         shown, st = ev.play_window(calib, "auto", clip, fps, slowdown=k,
@@ -77,7 +79,7 @@ def main() -> None:
                               f"{f'{still[0]} ({len(still)})' if still else '–'} | "
                               f"{'; '.join(where) or '–'} |", flush=True)
     finally:
-        cls.available, cls.start = available, start
+        cls.available, cls.start, cls.may_settle = available, start, may_settle
 
 if __name__ == "__main__":
     main()

@@ -56,8 +56,9 @@ CATCH_UP_FRESH = 2
 #: frame loop where the frames shown meanwhile keep their period (:mod:`rtdefocus.stream.settle`:
 #: a solver off the CPU, or on the CPU where the loop's measured work for a geometry-only frame
 #: leaves the room; no frame is dropped for it, and its result is dropped if the picture changes
-#: first); on the loop, the frames it drops are copies of the picture unless the picture
-#: changes during it. Either way a still that lasted that long seldom ends during it, so the
+#: first); a CPU device without that room makes none (``can_settle``); on the loop (where the
+#: player cannot settle beside it), the frames it drops are copies of the picture unless the
+#: picture changes during it. Either way a still that lasted that long seldom ends during it, so the
 #: work (which shares the device with the warps) is seldom wasted. Before it the picture is
 #: shown with geometry only, after it as compensated (refined further only where a refinement
 #: fits two periods).

@@ -28,7 +28,12 @@ runs beside the loop only where the loop's own work for a geometry-only frame, a
 the frames it showed so (:meth:`BackgroundSettle.timed`: the quantile
 :data:`SETTLE_CPU_QUANTILE` of the last :data:`SETTLE_CPU_FRAMES`), times
 :data:`SETTLE_CPU_SHARE` (the solve takes the cores from it) and :data:`SETTLE_CPU_HEADROOM`,
-fits one frame period. Elsewhere the settle runs on the loop's thread as a compensated frame.
+fits one frame period. Where that leaves no room (or before it is measured), no settle is made
+(:meth:`BackgroundSettle.may_settle`): one on the loop's thread would hold the loop as long, and
+one that spans a cut would lose the new shot's first frames; the still stays at geometry only.
+Where the settle cannot run beside the loop for a reason of the player's (frames read on the
+loop's thread, a watcher, a shared GL context, a wrapper), it runs on the loop's thread as a
+compensated frame.
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ log = logging.getLogger(__name__)
 #: (:meth:`BackgroundSettle.timed`); that, times SETTLE_CPU_HEADROOM, must fit one frame period.
 #: On 2 PoCL cores an 800x600 geometry-only frame is 17-19 ms of CPU, 9-10 ms a core: 24 ms
 #: with both factors, so beside the loop at 24 and 30 fps, where a settle there kept every
-#: frame in 3 idle runs, and on the loop at 60 fps, where one there lost moving frames.
+#: frame in 3 idle runs, and none at 60 fps, where one beside the loop lost moving frames.
 SETTLE_CPU_SHARE, SETTLE_CPU_HEADROOM = 2.0, 1.25
 #: ... the geometry-only frames it is measured on (the last SETTLE_CPU_FRAMES shown without a
 #: settle beside them, at least SPREAD_MIN), and the quantile of their costs taken.
