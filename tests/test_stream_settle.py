@@ -30,15 +30,29 @@ class SettleDevice(PacedCompensator):
     """A device whose frames cost MOVING (the real Compensator, paced): its settle, solved by
     ``compensate_warped``, records the thread it ran on and waits until the player has shown
     ``frames_during`` more frames than when it began (so it spans at least that many frame
-    periods, however fast the machine), or until ``shown_index`` is shown."""
+    periods, however fast the machine), or until ``shown_index`` is shown. ``cpu``: its solver
+    is said to run on the CPU cores (``solves_off_the_cpu`` False); ``warp_cpu``: its warp
+    burns that many seconds of CPU on the calling thread first (a geometry-only frame on a
+    slow CPU)."""
 
-    #: Its settle waits on the player, not on the CPU: a device of its own, as a GPU is.
-    solves_off_the_cpu = True
-
-    def __init__(self, comp, frames_during=0, shown_index=None):
+    def __init__(self, comp, frames_during=0, shown_index=None, cpu=False, warp_cpu=0.0):
         super().__init__(comp, overhead=MOVING - 0.004, per_iteration=0.004)
         self.frames_during, self.shown_index = frames_during, shown_index
+        # (the settle waits on the player, not on the CPU: a device of its own, as a GPU is,
+        # unless said to be the CPU)
+        self.solves_off_the_cpu, self.warp_cpu = not cpu, warp_cpu
         self.player, self.settles, self.threads, self.outs = None, [], [], []
+        self.compensate_threads = []
+
+    def warp(self, image):
+        end = time.thread_time() + self.warp_cpu
+        while time.thread_time() < end:
+            pass
+        return self.comp.warp(image)
+
+    def compensate(self, image, **kw):
+        self.compensate_threads.append(threading.current_thread())
+        return super().compensate(image, **kw)
 
     def compensate_warped(self, warped, **kw):
         self.threads.append(threading.current_thread())
@@ -69,15 +83,21 @@ def play_settle(comp, still, moving, **device):
     return dev, player, stats, frames
 
 
-def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated(comp):
+@pytest.mark.parametrize("cpu", [False, True], ids=["off the cpu", "on the cpu with room"])
+def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated(comp, cpu,
+                                                                                monkeypatch):
     """A still of 45 frames then 12 moving ones at 30 fps on a device too slow for moving
     frames: the still is settled on a worker thread while the loop shows at least 3 more
     frames; once done, the still's next frames show the settle's result (not its geometry
     only), and no frame after the still does; no frame is lost (only copies of the still may
     be dropped), every moving frame is shown with geometry only, and the worker is gone when
-    the show ends."""
+    the show ends. So on a device off the CPU, and on one on the CPU where the loop's work for
+    a geometry-only frame (a 64x48 warp, well under a millisecond) leaves the room. The
+    Compensator is left as after compensating the still: a refinement of it (``compensate``)
+    continues its solve without warping it again."""
     still, moving = 45, 12
-    dev, player, stats, frames = play_settle(comp, still, moving, frames_during=3)
+    dev, player, stats, frames = play_settle(comp, still, moving, frames_during=3, cpu=cpu)
+    assert player._settle.room_on_the_cpu() or not cpu
     sink = player.sink
     assert len(dev.settles) == 1 and dev.settles[0] >= 3, dev.settles
     assert all(t is not threading.main_thread() for t in dev.threads)
@@ -91,6 +111,10 @@ def test_a_settle_beside_the_loop_loses_no_frame_and_shows_the_still_compensated
     for i in range(still, still + moving):
         assert np.array_equal(shown[i], comp.warp(frames[i])), i
     assert player._settle.dropped == 0
+    warps, warp = [], comp.warp
+    monkeypatch.setattr(comp, "warp", lambda image: warps.append(image) or warp(image))
+    comp.compensate(frames[0], iterations=1)
+    assert warps == [] and comp.last_info["start"] == "still", comp.last_info.get("start")
 
 
 def test_a_settle_that_ends_after_the_picture_changed_is_not_shown(comp):
@@ -120,17 +144,49 @@ def test_a_wrapper_without_its_own_solve_of_a_warped_frame_settles_on_the_loop(c
 
 
 
-def test_a_solve_on_the_cpu_settles_on_the_loop(comp):
-    """A solve on the CPU cores (NumPy, an OpenCL CPU device) would take them from the warps of
-    the frames shown meanwhile: only a solver off the CPU settles beside the loop."""
+def test_a_solve_on_the_cpu_settles_beside_the_loop_only_where_the_loop_leaves_room(comp):
+    """A solve on the CPU cores (NumPy, an OpenCL CPU device) takes them from the warps of the
+    frames shown meanwhile: it settles beside the loop only once the loop's work for a
+    geometry-only frame is measured and, taken SETTLE_CPU_SHARE times with SETTLE_CPU_HEADROOM,
+    fits one period: 20 ms of a frame's own thread does not at 30 fps (50 ms > 33 ms), does at
+    10 fps (100 ms). Where it does not, no settle is made at all (a settle on the loop's thread
+    would hold the loop as long); a player that cannot settle beside the loop for its own reason
+    (frames read on the loop's thread) settles on the loop. A solver off the CPU (an OpenCL
+    GPU) settles beside it in any case."""
     from rtdefocus.cl.runtime import get_runtime
+    from rtdefocus.stream.controls import SPREAD_MIN
 
     cpu = Compensator(virtual_calibration(), backend="numpy")
     assert not cpu.solves_off_the_cpu
-    source = ArraySource(synthetic_frames(2), fps=FPS, live=True)
-    assert not BackgroundSettle(Player(cpu, source, RecordingSink(realtime=True))).available()
+    for fps, room in ((FPS, False), (10.0, True)):
+        source = ArraySource(synthetic_frames(2), fps=fps, live=True)
+        settle = BackgroundSettle(Player(cpu, source, RecordingSink(realtime=True)))
+        for _ in range(SPREAD_MIN):
+            assert not settle.available()                # (not measured yet)
+            settle.timed(time.process_time(), time.thread_time() - 0.020)
+        assert settle.geometry_cost() >= 0.020
+        assert settle.available() == settle.may_settle() == room, fps
+    # a player whose settle cannot run beside the loop for its own reason settles on the loop
+    inline = Player(cpu, source, RecordingSink(realtime=True), threads=False)
+    assert not BackgroundSettle(inline).available() and BackgroundSettle(inline).may_settle()
     if comp.backend == "opencl":
         assert comp.solves_off_the_cpu == get_runtime().is_gpu
         player = Player(comp, source, RecordingSink(realtime=True))
         assert BackgroundSettle(player).available() == (get_runtime().is_gpu
                                                         and not comp.shares_gl)
+
+
+def test_a_cpu_device_without_room_makes_no_settle(comp):
+    """Through the real player at 30 fps, a device on the CPU whose geometry-only frame burns
+    20 ms of the loop's thread (50 ms with a solve beside it and the headroom: over the 33 ms
+    period): the loop measured that frame's work (at least the 20 ms burnt), and the still is
+    settled neither beside the loop nor on its thread (which would hold the loop as long): it
+    stays at geometry only, every frame of it."""
+    dev, player, stats, frames = play_settle(comp, 40, 4, cpu=True, warp_cpu=0.020)
+    assert player._settle.geometry_cost() >= 0.020
+    assert not player._settle.room_on_the_cpu() and not player._settle.may_settle()
+    assert dev.threads == [] and dev.compensate_threads == [], "a settle was made"
+    assert stats.iterations.count == 0, stats.summary()
+    geometry = comp.warp(frames[0])
+    shown = dict(zip(player.sink.indices, player.sink.frames, strict=True))
+    assert all(np.array_equal(shown[i], geometry) for i in range(40) if i in shown)

@@ -318,11 +318,16 @@ class Compensator:
         return warped
 
     def compensate_warped(self, warped: np.ndarray, *, iterations: int | None = None,
-                          warm_start: bool = True) -> np.ndarray:
-        """:meth:`compensate` for a frame that is already in projector space ((Hp, Wp, 3) uint8)."""
+                          warm_start: bool = True, image: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`compensate` for a frame that is already in projector space ((Hp, Wp, 3) uint8).
+        ``image``: the input whose :meth:`warp` ``warped`` is, where known: a later
+        :meth:`compensate` of the same input then skips its warp, as after compensating it (a
+        live player's still, settled from its warp and refined by :meth:`compensate`)."""
         _check_budget(iterations)
         t0 = time.perf_counter()
         out, info = self._compensate_warped(warped, iterations, warm_start)
+        if isinstance(image, np.ndarray):
+            self._warp_cache = (image.copy(), warped)
         info["seconds"]["total"] = time.perf_counter() - t0
         self.last_info = info
         return out

@@ -53,12 +53,15 @@ CATCH_UP_FRESH = 2
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
 #: long as that compensation takes with the safety margin. The live player solves it beside the
-#: frame loop where it can (:mod:`rtdefocus.stream.settle`: no frame is dropped for it, and its
-#: result is dropped if the picture changes first); on the loop, the frames it drops are copies
-#: of the picture unless the picture changes during it. Either way a still that lasted that
-#: long seldom ends during it, so the work (which shares the device with the warps) is seldom
-#: wasted. Before it the picture is shown with geometry only, after it as compensated (refined
-#: further only where a refinement fits two periods).
+#: frame loop where the frames shown meanwhile keep their period (:mod:`rtdefocus.stream.settle`:
+#: a solver off the CPU, or on the CPU where the loop's measured work for a geometry-only frame
+#: leaves the room; no frame is dropped for it, and its result is dropped if the picture changes
+#: first); a CPU device without that room makes none (``can_settle``); on the loop (where the
+#: player cannot settle beside it), the frames it drops are copies of the picture unless the
+#: picture changes during it. Either way a still that lasted that long seldom ends during it, so the
+#: work (which shares the device with the warps) is seldom wasted. Before it the picture is
+#: shown with geometry only, after it as compensated (refined further only where a refinement
+#: fits two periods).
 CATCH_UP_STILL_WAIT = 4
 #: Moving frames a live player's warm-up times (:meth:`rtdefocus.Compensator.warm_up`): the
 #: first sets the expected cost, the others measure its spread (SPREAD_MIN of them), so the
@@ -124,7 +127,7 @@ class CatchUp:
         self._still_since, self._settled = index, False
 
     def decide(self, frame: Frame, iterations: int, still: bool, repeat: bool,
-               can_reshow: bool) -> tuple[str, int | None]:
+               can_reshow: bool, can_settle=None) -> tuple[str, int | None]:
         """What to show for ``frame``, as ``(action, n)``.
 
         ``("compensate", n)`` with the iterations n (at most ``iterations``) whose expected
@@ -137,8 +140,9 @@ class CatchUp:
         ``("reshow", None)`` once it is compensated (``repeat`` and ``can_reshow``: its last
         output again, at no cost); before that, once, ``("settle", n)`` (compensate, though it
         may take several periods: beside the frame loop where the player can) where the
-        picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long as that takes, else
-        ``("geometry", None)``. Without measured costs: ``("compensate", iterations)``."""
+        picture has stayed :data:`CATCH_UP_STILL_WAIT` times as long as that takes and
+        ``can_settle()`` (a callable; None: always) allows it, else ``("geometry", None)``.
+        Without measured costs: ``("compensate", iterations)``."""
         b = self.budget
         self._fresh = 0 if still else self._fresh + 1
         rest = b.frame_seconds(0, repeat, deadline=True)
@@ -162,7 +166,7 @@ class CatchUp:
             lasted = (frame.index - self._still_since) * b.period
             room = lasted / (CATCH_UP_STILL_WAIT * margin) - rest
             n = int(room / b.per_iteration) if b.per_iteration > 0 else iterations
-            if not self._settled and n >= b.minimum:
+            if not self._settled and n >= b.minimum and (can_settle is None or can_settle()):
                 self._settled = True
                 return "settle", min(iterations, n)
             return "geometry", None

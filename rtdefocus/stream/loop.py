@@ -38,7 +38,7 @@ per-frame iteration budget adapts to hold the target frame rate
 slow device on moving content), a frame whose compensation, by its measured cost times a safety
 margin, would end after the frame after next has arrived is shown with geometry only
 (``catch_up``; see :mod:`rtdefocus.stream.catch_up`; a still picture's one compensation, its
-settle, is solved beside the loop where the solver is off the CPU:
+settle, is solved beside the loop where the frames shown meanwhile keep their period:
 :mod:`rtdefocus.stream.settle`): a warp costs a fraction of a solve, so the loop keeps up
 instead of dropping the next frame and leaving a late one on the screen (on moving content a
 repeated frame looks far worse than an uncompensated fresh one; ``stats.geometry_frames``
@@ -375,7 +375,8 @@ class Player:
                 or self.controls.mode != "full"):
             return "compensate", iterations
         return self._catch_up.decide(frame, iterations, still, repeat,
-                                     can_reshow=self._last_out is not None)
+                                     can_reshow=self._last_out is not None,
+                                     can_settle=self._settle.may_settle)
 
     def _warm_up(self) -> None:
         """Live playback with an adaptive budget: run the Compensator's video path before the
@@ -396,10 +397,12 @@ class Player:
     def _show_geometry(self, frame: Frame, t_start: float) -> None:
         """``frame`` with geometry only, to keep up (see :meth:`_catch_up_iterations`)."""
         self.stats.geometry_frames += 1
+        cpu = time.process_time(), time.thread_time()    # (the room a settle leaves: timed)
         if self._direct_geometry(catching_up=True):
             self._present_warped(frame.image, frame.index, frame.t_read, t_start)
-            return
-        self.present(self._warp(frame.image), frame.index, frame.t_read, t_start)
+        else:
+            self.present(self._warp(frame.image), frame.index, frame.t_read, t_start)
+        self._settle.timed(*cpu)
 
     def _update_budget(self, t_start: float, repeat: bool = False, info: dict | None = None) -> None:
         if self.budget is None or self.controls.mode != "full":

@@ -213,9 +213,9 @@ class SlowedCompensator:
     def _times(self, seconds: dict | None) -> dict:
         return {k: v * self.factor for k, v in (seconds or {}).items()}
 
-    def _slowed(self, solve, image, **kw):
+    def _slowed(self, solve, frame, **kw):
         t0 = time.perf_counter()
-        out = solve(image, **kw)
+        out = solve(frame, **kw)
         time.sleep((self.factor - 1.0) * (time.perf_counter() - t0))
         self.last_info = self._scaled(self.comp.last_info)
         return out
