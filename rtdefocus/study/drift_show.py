@@ -86,25 +86,21 @@ class DriftShow:
             self._image_key = (image, frame_key(image))
         return self._image_key[1]
 
-    def warp(self, calib, image, rect=None) -> np.ndarray:
-        """The geometry-corrected frame in camera rectangle ``rect`` (default :attr:`rect`; the
-        last one again while the content and the rectangle repeat)."""
-        rect = tuple(int(v) for v in (self.rect if rect is None else rect))
-        k, key = id(calib), (self._key_of(image), rect)
+    def warp(self, calib, image) -> np.ndarray:
+        """The geometry-corrected frame (the last one again while the content repeats)."""
+        k, key = id(calib), self._key_of(image)
         hit = self._warps.get(k)
         if hit is None or hit[0] is not calib or hit[1] != key:
-            hit = self._warps[k] = (calib, key, warp_image(calib, image, rect=rect))
+            hit = self._warps[k] = (calib, key, warp_image(calib, image, rect=self.rect))
         return hit[2]
 
-    def compensate(self, calib, image, rect=None) -> np.ndarray:
-        """The compensated frame of ``image`` in ``rect`` (see :meth:`warp`), solved once per
-        calibration and frame."""
+    def compensate(self, calib, image) -> np.ndarray:
         k = id(calib)
         if k not in self._comped:
             if k not in self.comps:
                 self.comps[k] = (calib, Compensator(calib, backend=self.backend))
             self._comped[k] = self.comps[k][1].compensate_warped(
-                self.warp(calib, image, rect), iterations=self.iterations, warm_start=True)
+                self.warp(calib, image), iterations=self.iterations, warm_start=True)
         return self._comped[k]
 
     def keep_only(self, calibs) -> None:
