@@ -1,10 +1,12 @@
 """The live player's catch-up decisions and its safety margin, on a simulated clock.
 
 A live source at ``fps`` feeds the real :class:`CatchUp` and :class:`IterationBudget`, with the
-Player's drop policy (a queue of one frame: a frame that arrives while one waits drops the
-waiting one) and the costs of a paced device: the loop's timing is the simulation's, so the
-outcome is the same on any machine and under any load (the real player with a paced device is
-tested in tests/test_stream.py).
+Player's drop policy on a queue of one frame (a frame that arrives while one waits drops the
+waiting one: stricter than the Player's two, where the frame after an overrun is shown late,
+so that here every overrun of the two-period deadline is a loss and the safety margin alone is
+tested) and the costs of a paced device: the loop's timing is the simulation's, so the outcome
+is the same on any machine and under any load (the real player with a paced device is tested
+in tests/test_stream.py).
 """
 
 from __future__ import annotations

@@ -37,10 +37,11 @@ def test_preview_lines_carry_the_loop_figures():
     for n in (2, 4, 3):
         st.iterations.add(n)
         st.frame_out()
-    st.geometry_frames, st.dropped = 1, 2
+    st.geometry_frames, st.dropped, st.late = 1, 2, 1
     a, b, c = preview_lines(st, "geometry", paused=True)
     assert "iterations 3 (mean 3.0)" in a and "fps" in a
     assert "shown 3" in b and "geometry only 1 (33%)" in b and "dropped 2" in b
+    assert "late 1" in b
     assert "mode geometry" in c and "PAUSED" in c
 
 

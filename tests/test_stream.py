@@ -388,6 +388,27 @@ def test_catch_up_returns_to_compensating_after_one_slow_frame(comp):
     assert stats.dropped <= 4 + 2, stats.summary()     # the slow frame's own ~4, and few more
 
 
+def test_a_frame_past_its_deadline_makes_the_next_late_not_lost(comp):
+    """A compensated frame that overruns the two periods its safety margin allowed (a spike of
+    the device beyond its measured spread: 85 ms at 30 fps) leaves the frame after it waiting
+    while the frame after next arrives: the live player's queue of two keeps both, shows them
+    (late, counted) and loses none; with a queue of one the waiting frame is dropped."""
+    fps, n = 30.0, 30
+    runs = {}
+    for queue_size in (None, 1):
+        comp.reset()
+        paced = SlowFramesCompensator(comp, overhead=0.030, per_iteration=0.004, slow={8},
+                                      slow_seconds=0.085)
+        player = Player(paced, ArraySource(synthetic_frames(n), fps=fps, live=True),
+                        RecordingSink(realtime=True), queue_size=queue_size)
+        runs[queue_size] = player.run()
+        assert paced.calls >= 8, runs[queue_size].summary()
+    kept, one = runs[None], runs[1]
+    assert kept.dropped == 0 and kept.late >= 1, kept.summary()
+    assert kept.frames_out == n
+    assert one.dropped - one.dropped_copies >= 1, one.summary()
+
+
 # Far over in the fast tier; just over two periods (a live run of ~1.5 s more) in the whole suite.
 @pytest.mark.parametrize("frame_ms", [pytest.param(75, marks=pytest.mark.slow), 150],
                          ids=["just-over-two-periods", "far-over"])
@@ -680,6 +701,19 @@ def test_series_mean_p95_constant_memory():
     assert s.count == 100 + 2 * WINDOW
     assert s.recent()[0] == 1000 + WINDOW and s.recent()[-1] == 1000 + 2 * WINDOW - 1
     assert s._ring.nbytes == WINDOW * 8
+
+
+def test_frames_past_the_deadline_count_late():
+    """A live player's deadline (two periods) counts the frames shown after it; without one
+    (file rendering) nothing is late."""
+    st = LoopStats()
+    st.add_latency(0.5)
+    assert st.late == 0 and st.stages["latency"].count == 1
+    st.deadline = 2 / 30
+    for seconds in (0.010, 0.066, 0.070, 0.120):
+        st.add_latency(seconds)
+    assert st.late == 2 and st.as_dict()["late"] == 2
+    assert "2 frames shown more than 67 ms" in st.summary()
 
 
 def test_summary_and_json(tmp_path, comp):

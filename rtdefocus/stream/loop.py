@@ -27,10 +27,13 @@ included, the side threads are stopped and joined before :meth:`Player.run` retu
 Drop policy
 -----------
 *Realtime* (a live source such as a camera, or any source shown in the projector window):
-the queue holds ``queue_size`` frames (default 1). When it is full the decoder removes the
+the queue holds ``queue_size`` frames (default 2). When it is full the decoder removes the
 oldest queued frame and counts it in ``stats.dropped`` before adding the new one, so the
-solver always gets the newest frame, frames keep their capture order (the queue is FIFO and
-only the decoder removes from its head when dropping), and the source never waits. A dropped
+solver gets the newest frames, frames keep their capture order (the queue is FIFO and only
+the decoder removes from its head when dropping), and the source never waits. The second
+place is slack for a frame that overruns its deadline (a device's cost beyond its measured
+spread): the frame after it is shown late (``stats.late``), not lost, and the catch-up below
+shows geometry only until the loop is on time again. A dropped
 frame that repeats the picture of the frame before it (a still, a paused camera) loses nothing
 on the screen: ``stats.dropped_copies`` counts those among ``stats.dropped``. The
 per-frame iteration budget adapts to hold the target frame rate
@@ -104,7 +107,7 @@ class Player:
         Drop stale frames instead of waiting (default: the source is live or the sink is
         realtime).
     queue_size : int, optional
-        Frames between decoder and solver (default 1 when live, 4 otherwise).
+        Frames between decoder and solver (default 2 when live, 4 otherwise).
     cache : SlideCache, path, True or None
         Where compensated stills are kept across runs: a :class:`SlideCache`, a cache root
         folder, True for the default folder, or None (no disk cache). A path or True keys the
@@ -159,7 +162,7 @@ class Player:
         self.fps = float(fps or source.fps or 30.0)
         self.iterations = iterations
         self.live = bool(source.live or sink.realtime) if live is None else bool(live)
-        self.queue_size = int(queue_size or (1 if self.live else 4))
+        self.queue_size = int(queue_size or (2 if self.live else 4))
         if self.queue_size < 1:
             raise InputError(f"queue_size must be >= 1; got {queue_size}")
         self.progress = progress
@@ -174,6 +177,8 @@ class Player:
         if iterations is None and sink.realtime:
             self.budget = IterationBudget(self.fps, maximum=self.max_iterations)
         self.stats = LoopStats(source.describe(), sink.describe())
+        if self.live and sink.realtime:     # the catch-up's promise: before the frame after next
+            self.stats.deadline = 2.0 / self.fps
         self._stop = threading.Event()
         self._hold = threading.Event()       # set while a paced (file) source should wait
         self._last_index = -1
@@ -335,7 +340,7 @@ class Player:
             self.watcher.offer(out)
         st.add("frame", t1 - t_start)
         if t_read is not None:
-            st.add("latency", t1 - t_read)
+            st.add_latency(t1 - t_read)
         st.frame_out()
 
     def _direct_geometry(self, catching_up: bool = False) -> bool:
@@ -363,7 +368,7 @@ class Player:
         st.add("warp+present", t1 - t_start)
         st.add("frame", t1 - t_start)
         if t_read is not None:
-            st.add("latency", t1 - t_read)
+            st.add_latency(t1 - t_read)
         st.frame_out()
 
     def _catch_up_iterations(self, frame: Frame, iterations: int | None, still: bool,

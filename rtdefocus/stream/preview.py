@@ -26,14 +26,14 @@ LINE_PX = 18
 
 def preview_lines(stats, mode: str = "full", paused: bool = False) -> list[str]:
     """The figures under the picture: frame rate, iterations per frame, frames shown and how
-    many of them with geometry only, dropped frames, the mode."""
+    many of them with geometry only, dropped and late frames, the mode."""
     its = stats.iterations
     last = f"{int(its.last)}" if its.count else "-"
     mean = f"{its.mean:.1f}" if its.count else "-"
     share = (f" ({stats.geometry_frames / stats.frames_out:.0%})" if stats.frames_out else "")
     return [f"{stats.fps_now:.1f} fps   iterations {last} (mean {mean})",
             f"shown {stats.frames_out}   geometry only {stats.geometry_frames}{share}   "
-            f"dropped {stats.dropped}",
+            f"dropped {stats.dropped}   late {stats.late}",
             f"mode {mode}{'   PAUSED' if paused else ''}   keys: space c g s arrows q"]
 
 

@@ -78,6 +78,11 @@ class LoopStats:
         the screen (a still, a paused camera): nothing the audience would have seen is lost.
     geometry_frames : int
         Frames shown with geometry only to keep up (realtime playback, ``Player(catch_up=True)``).
+    late : int
+        Frames shown more than ``deadline`` seconds after they were read: later than a live
+        player's promise (a compensated frame ends before the frame after next arrives).
+    deadline : float or None
+        A live player's two frame periods (None: no promise, nothing counted late).
     pattern_frames : int
         Frames of a watcher's pattern bursts, shown instead of the content.
     stages : dict[str, Series]
@@ -109,6 +114,8 @@ class LoopStats:
         self.dropped = 0
         self.dropped_copies = 0
         self.geometry_frames = 0
+        self.late = 0
+        self.deadline: float | None = None
         self.pattern_frames = 0
         self.stages: dict[str, Series] = {}
         self.iterations = Series()
@@ -128,6 +135,13 @@ class LoopStats:
         if series is None:
             series = self.stages[stage] = Series()
         series.add(seconds)
+
+    def add_latency(self, seconds: float) -> None:
+        """A frame shown ``seconds`` after it was read: the ``latency`` stage, and :attr:`late`
+        when that is past :attr:`deadline`."""
+        self.add("latency", seconds)
+        if self.deadline is not None and seconds > self.deadline:
+            self.late += 1
 
     def add_surface(self, info: dict) -> None:
         """Count a compensated frame's clipped shares (a no-op unless ``surface="flatten"``)."""
@@ -170,7 +184,7 @@ class LoopStats:
         it = f"iterations {int(self.iterations.last)}" if self.iterations.count else "iterations -"
         res = f"residual {self.residual:.4g}" if self.residual is not None else "residual -"
         lines = [f"{self.fps_now:5.1f} fps  in {self.frames_in}  out {self.frames_out}  "
-                 f"dropped {self.dropped}  geometry only {self.geometry_frames}",
+                 f"dropped {self.dropped}  late {self.late}  geometry only {self.geometry_frames}",
                  f"ms: {ms}",
                  f"{it}  {res}  mode {mode}{'  PAUSED' if paused else ''}"]
         if self.pattern_frames:
@@ -186,6 +200,7 @@ class LoopStats:
             "source": self.source, "sink": self.sink,
             "frames_in": self.frames_in, "frames_out": self.frames_out, "dropped": self.dropped,
             "dropped_copies": self.dropped_copies, "geometry_frames": self.geometry_frames,
+            "late": self.late,
             "pattern_frames": self.pattern_frames,
             "seconds": round(self.seconds, 4), "fps": round(self.fps, 3),
             "stages_ms": {k: {m: round(v, 3) if isinstance(v, float) else v
@@ -207,6 +222,9 @@ class LoopStats:
         if self.geometry_frames:
             lines.append(f"  {self.geometry_frames} frames shown with geometry only to keep up "
                          "(compensating them would have dropped the next)")
+        if self.late:
+            lines.append(f"  {self.late} frames shown more than {1e3 * self.deadline:.0f} ms (two "
+                         "periods) after they arrived: late, not dropped")
         if self.pattern_frames:
             lines.append(f"  {self.pattern_frames} pattern frames shown by the watcher's bursts")
         if self.stages:

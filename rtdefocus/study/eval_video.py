@@ -15,7 +15,8 @@ frame after frame, in order, in several *modes*:
                through the real player (:class:`~rtdefocus.stream.Player`, realtime sink), which
                drops frames it cannot keep up with and shows some with geometry only to keep up
                (its ``catch_up``); a dropped frame's time shows the last frame shown, scored
-               against the frame that should be there;
+               against the frame that should be there; a frame shown late (more than two
+               periods after it arrived, after an overrun) is scored as shown and counted;
 ``geowindow-N`` the same window with compensation off (the player's geometry mode): what the
                audience would see instead, drops included (0 dB where it keeps up);
 ``window-N-sK`` the window on a device K times slower (``slowdown``: :class:`SlowedCompensator`
@@ -408,7 +409,7 @@ def run_video_eval(out_dir: str | Path = "eval_video_out", *, quick: bool = Fals
         window_stats[m] = {"shown": st.frames_out, "dropped": st.dropped,
                            "dropped_copies": st.dropped_copies,
                            "geometry_only": st.geometry_frames, "start_only": st.start_only,
-                           "fps": st.fps}
+                           "late": st.late, "fps": st.fps}
     on_screen = dict.fromkeys(windows)        # what each window shows at the current frame
 
     records = []

@@ -65,7 +65,8 @@ def video_markdown(result: dict) -> str:
         "pick their iterations from these times, on this loaded machine; every frame is "
         "compensated). *The window*: the clip played live through the player, as the projector "
         "window shows it: a dropped frame's time shows the last frame shown, a frame shown "
-        "with geometry only to keep up counts 0 iterations.", "",
+        "with geometry only to keep up counts 0 iterations, a frame shown late (more than two "
+        "periods after it arrived) is scored as shown and counted.", "",
     ]
     head = "| mode | " + " | ".join(segs) + " | still @1 s | cut | it | ms |"
     lines += [head, "|" + "---|" * (len(segs) + 5)]
@@ -90,8 +91,9 @@ def video_markdown(result: dict) -> str:
                   if mode.startswith("window") else "")
         copies = w.get("dropped_copies", 0)
         copies = f" ({copies} of them copies of the picture on the screen)" if copies else ""
-        lines += ["", f"{mode_label(mode)}: {w['shown']} frames shown{caught}, {w['dropped']} "
-                  f"dropped{copies}, {w['fps']:.1f} fps end to end."]
+        late = f", {w['late']} of them late" if w.get("late") else ""
+        lines += ["", f"{mode_label(mode)}: {w['shown']} frames shown{caught}{late}, "
+                  f"{w['dropped']} dropped{copies}, {w['fps']:.1f} fps end to end."]
     lines += ["", f"Run time {result['seconds']:.0f} s.", ""]
     return "\n".join(lines)
 
