@@ -176,6 +176,27 @@ def test_a_jittery_device_loses_no_moving_frame(monkeypatch):
     assert lost_blind, "the spikes should cost frames under a steady device's margin"
 
 
+def test_two_slow_frames_do_not_keep_a_device_that_fits_at_geometry_only(monkeypatch):
+    """A device whose moving frames fit (40 ms of start at 30 fps) has a few slow ones in a row
+    (1.25x: another program's burst) early in the shot: the deadline's median of the last
+    frames then says no moving frame fits, and with nothing compensated nothing would measure
+    the device again; once CATCH_UP_STALE moving frames went out with geometry only, the
+    longer history stands for them, and the device compensates again, losing no frame."""
+    still = 30
+    costs = steady(n=150, spread=0.01)
+    burst = range(still + 14, still + 22)
+    for i in burst:
+        costs[i] *= 1.25
+    shown, lost, comp = play(monkeypatch, costs, rest=0.040)
+    assert lost == [], lost
+    after = [i for i in comp if i > burst[-1] + catch_up.CATCH_UP_STALE]
+    assert len(after) >= 20, comp
+    monkeypatch.setattr(catch_up, "CATCH_UP_STALE", 10**9)        # the estimate never ages
+    _, lost_frozen, comp_frozen = play(monkeypatch, costs, rest=0.040)
+    assert lost_frozen == [], lost_frozen
+    assert [i for i in comp_frozen if i > burst[-1]] == [], comp_frozen
+
+
 def test_a_late_frame_raises_the_margin_and_calm_frames_bring_it_back(monkeypatch):
     """A compensated frame that ends after the frame after next arrived multiplies the margin
     by CATCH_UP_MARGIN_STEP; moving frames on time step it back."""

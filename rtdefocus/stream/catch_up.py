@@ -50,6 +50,14 @@ CATCH_UP_MARGIN_MIN, CATCH_UP_MARGIN_MAX = 1.1, 4.0
 CATCH_UP_MARGIN_STEP = 1.25
 CATCH_UP_CALM, CATCH_UP_CALM_MAX = 8, 256
 CATCH_UP_FRESH = 2
+#: Moving frames in a row shown with geometry only after which the deadline's estimate of a
+#: moving frame's cost, frozen since none was compensated, is the median of the longer history
+#: (:meth:`IterationBudget.frame_seconds` ``stale``): two slow frames in a row (a first moving
+#: frame after a still, another program's burst) then do not keep a device that usually fits
+#: at geometry only for the rest of the shot; a frame admitted so measures the device afresh
+#: (the old rests give way: :meth:`IterationBudget.forget_recent`). A device whose usual cost
+#: does not fit stays at geometry only.
+CATCH_UP_STALE = 24
 #: A still picture (the same frame again: a paused file, a still shot) whose compensation does
 #: not fit two periods is compensated once (a "settle"), when it has stayed this many times as
 #: long as that compensation takes with the safety margin. The live player solves it beside the
@@ -106,6 +114,7 @@ class CatchUp:
         self._still_since = 0                # index of the current picture's first frame
         self._settled = False                # ... and whether it was settled
         self._fresh = 0                      # moving frames since the last still (0: none)
+        self._unmeasured = 0                 # moving frames in a row not compensated
 
     @property
     def margin(self) -> float:
@@ -145,7 +154,8 @@ class CatchUp:
         Without measured costs: ``("compensate", iterations)``."""
         b = self.budget
         self._fresh = 0 if still else self._fresh + 1
-        rest = b.frame_seconds(0, repeat, deadline=True)
+        stale = not repeat and self._unmeasured >= CATCH_UP_STALE
+        rest = b.frame_seconds(0, repeat, deadline=True, stale=stale)
         if rest is None:
             return "compensate", iterations
         margin = self.margin_for(repeat)
@@ -156,6 +166,8 @@ class CatchUp:
         left = window - (time.perf_counter() - frame.t_read) - margin * rest
         per_it = margin * b.per_iteration
         fit = int(left / per_it) if per_it > 0 else iterations
+        if stale and (fit >= b.minimum or left >= 0):
+            b.forget_recent()                # (this frame measures the device again)
         if fit >= b.minimum:
             return "compensate", min(iterations, fit)
         if still:
@@ -179,6 +191,7 @@ class CatchUp:
         """After a moving frame: a compensated one that ended after the frame after next
         arrived raises the safety margin; moving frames without a late one step it back (see
         :data:`CATCH_UP_SHARE`)."""
+        self._unmeasured = 0 if compensated else self._unmeasured + 1
         if compensated and time.perf_counter() - frame.t_read > 2.0 * self.budget.period:
             if self._raised > 1.0:           # late again before the margin was back
                 self._calm = min(2 * self._calm, CATCH_UP_CALM_MAX)

@@ -122,6 +122,8 @@ class IterationBudget:
         self._overhead: dict[bool, float | None] = {False: None, True: None}
         self._recent: dict[bool, collections.deque] = {k: collections.deque(maxlen=RECENT)
                                                        for k in (False, True)}
+        self._history: dict[bool, collections.deque] = {
+            k: collections.deque(maxlen=SPREAD_FRAMES) for k in (False, True)}
         self._iterations = {False: start, True: start}
         self._expected = {False: False, True: False}   # the kind's rest is only expected
         self._ratios = {k: collections.deque(maxlen=SPREAD_FRAMES) for k in (False, True)}
@@ -141,18 +143,21 @@ class IterationBudget:
         return self._iterations[bool(repeat)]
 
     def frame_seconds(self, iterations: int | None = None, repeat: bool = False,
-                      deadline: bool = False) -> float | None:
+                      deadline: bool = False, stale: bool = False) -> float | None:
         """Expected seconds of a compensated frame of that kind at ``iterations`` (default its
         budget); ``deadline``: from the median of the last :data:`RECENT` frames' rests
         instead of their moving average, which one slow frame (a cut, a first use) holds up for
-        several frames. None before the first measured frame."""
+        several frames; ``stale`` (the last measurement is old: a catch-up that has compensated
+        no frame of the kind for a while), from the median of the last :data:`SPREAD_FRAMES`,
+        so that two slow frames in a row are not the estimate for good. None before the first
+        measured frame."""
         kind = self._measured_kind(repeat)
         rest = self._overhead[kind]
         if self.per_iteration is None or rest is None:
             return None
         if deadline:
             # (statistics, not NumPy: a few values, asked on every live frame)
-            rest = float(statistics.median(self._recent[kind]))
+            rest = float(statistics.median((self._history if stale else self._recent)[kind]))
         n = self.iterations_for(repeat) if iterations is None else int(iterations)
         return rest + n * self.per_iteration
 
@@ -177,9 +182,19 @@ class IterationBudget:
         repeat = bool(repeat)
         if self._overhead[repeat] is None or self._expected[repeat]:
             self._overhead[repeat] = max(0.0, float(rest))
-            self._recent[repeat].clear()
-            self._recent[repeat].append(self._overhead[repeat])
+            for rests in (self._recent[repeat], self._history[repeat]):
+                rests.clear()
+                rests.append(self._overhead[repeat])
             self._expected[repeat] = True
+
+    def forget_recent(self, repeat: bool = False) -> None:
+        """Let the last :data:`RECENT` rests of that kind go (old ones, a catch-up's frozen
+        estimate): they stand at the median of the longer history until the next frames
+        replace them."""
+        history = self._history[bool(repeat)]
+        if history:
+            self._recent[bool(repeat)].clear()
+            self._recent[bool(repeat)].append(float(statistics.median(history)))
 
     def _measured_kind(self, repeat: bool) -> bool:
         """The kind whose averages stand for ``repeat``: its own once measured, else the other."""
@@ -206,9 +221,11 @@ class IterationBudget:
             self._expected[repeat] = False
             self._overhead[repeat] = None
             self._recent[repeat].clear()
+            self._history[repeat].clear()
         self._overhead[repeat] = self._ema(self._overhead[repeat], rest)
         if deadline or not self._recent[repeat]:
             self._recent[repeat].append(rest)
+            self._history[repeat].append(rest)
         if self.per_iteration:
             for kind in (False, True):
                 rest = self._overhead[self._measured_kind(kind)]
