@@ -23,3 +23,26 @@ def test_moving_frames_after_a_still_converge_like_a_cold_start():
         cold.compensate(image, iterations=40, warm_start=False)
         d_warm, d_cold = warm.last_info["distances"][-1], cold.last_info["distances"][-1]
         assert d_warm <= 1.01 * d_cold, (i, warm.last_info["start"], d_warm, d_cold)
+
+
+def test_a_frame_shown_from_its_start_alone_pays_no_gradient():
+    """A moving frame compensated with 0 iterations right after one that iterated (the previous
+    correction carried along the motion, what a slow device's catch-up shows) computes no
+    gradient: the momentum's gradient at the new start is the first iteration's work, which a
+    frame that iterates does."""
+    procam = rd.sim.VirtualProCam("cubicle", projector_size=(96, 72), camera_size=(160, 120))
+    calib = oracle_calibration(procam)
+    clip = make_clip((96, 72), (Segment("pan", "pan", 7, 3.0),))
+    comp = rd.Compensator(calib, backend="numpy")
+    ops = comp._solver.ops
+    calls = []
+    gradient = ops.gradient
+    ops.gradient = lambda *a, **k: (calls.append(1), gradient(*a, **k))[1]
+    for i, (_, image) in enumerate(clip):
+        before = len(calls)
+        its = 0 if i % 3 == 2 else 2                      # 2, 2, 0, 2, 2, 0, 2
+        comp.compensate(image, iterations=its)
+        if i == 0:
+            continue
+        assert comp.last_info["start"] == "motion", comp.last_info
+        assert (len(calls) > before) == (its > 0), (i, its, len(calls) - before)

@@ -262,6 +262,10 @@ class Solver:
         self._momentum = False
         self._theta, self._beta = 1.0, 0.0
         self._carried = (False, 1.0, 0.0)            # the momentum begin_frame kept
+        # A warm start's momentum, moved along the motion but for G_prev (theta, beta), or None:
+        # the gradient at the new P and the carry of G_prev are the first iteration's work, so
+        # run() does them, and a frame shown from its start alone (0 iterations) never pays them.
+        self._pending: tuple[float, float] | None = None
     # ------------------------------------------------------------------ public
     def solve(self, target: np.ndarray, P0: np.ndarray | None = None, *, iterations: int = 30,
               tol: float = 0.0, headroom=None) -> tuple[np.ndarray, SolveInfo]:
@@ -304,6 +308,7 @@ class Solver:
         """P or the target changed: its distance, gradient and momentum are unknown."""
         self._d = None
         self._grad_ready = False
+        self._pending = None
         self.reset_momentum()
 
     def reset_momentum(self) -> None:
@@ -379,10 +384,12 @@ class Solver:
         no host round trip): ``P = clamp(T + B(P − T_prev))`` where the motion is valid, the
         cold start ``clamp(T)`` elsewhere; B is the motion set by ``ops.set_motion``. Kept only
         when it is at least as close as the cold start (:meth:`keep_better_than_cold`); then
-        FISTA's previous iterate and gradient move the same way (``P_prev``, ``G_prev``), with
-        the momentum dropped pixel by pixel where the motion is invalid (``P_prev = P``,
-        ``G_prev = G``: a plain step there). Call after :meth:`begin_frame` and the new target
-        (``d_cold``: from :meth:`cold_distance` on that target, see :meth:`keep_better_than_cold`).
+        FISTA's previous iterate and gradient move the same way (``P_prev`` here, ``G_prev``
+        with the gradient at the new P in :meth:`run`'s first iteration: a frame shown from its
+        start alone skips both and drops the momentum), with the momentum dropped pixel by
+        pixel where the motion is invalid (``P_prev = P``, ``G_prev = G``: a plain step
+        there). Call after :meth:`begin_frame` and the new target (``d_cold``: from
+        :meth:`cold_distance` on that target, see :meth:`keep_better_than_cold`).
 
         Returns
         -------
@@ -403,12 +410,17 @@ class Solver:
         if not kept or not momentum:
             return kept
         self._P_prev, self._fs = self._fs, self._P_prev
-        self._gradient()                            # the first iteration's, done here
+        self._pending = (theta, beta)               # (G and G_prev: run()'s first iteration)
+        return True
+
+    def _resume_momentum(self, theta: float, beta: float) -> None:
+        """The warm start's momentum, completed: the gradient at the new P and G_prev moved
+        along the motion (where it is invalid, G_prev = G: a plain step there)."""
+        self._gradient()
         self._grad_ready = True
-        ops.carry(self._G_prev, self._G, self._fs)
+        self.ops.carry(self._G_prev, self._G, self._fs)
         self._G_prev, self._fs = self._fs, self._G_prev
         self._theta, self._beta, self._momentum = theta, beta, True
-        return True
 
     def run(self, iterations: int, tol: float = 0.0) -> SolveInfo:
         """Iterate from the current ``self.P`` towards ``self.target`` (both on the backend).
@@ -423,11 +435,14 @@ class Solver:
         info = SolveInfo(self.solver)
         ops = self.ops
         fista = self.solver == "fista" and iterations > 0
+        pending, self._pending = self._pending, None
         if self._d is None:
             ops.forward(self.P, self._fp)
             # FISTA keeps the distance on the device (no read-back until the run ends)
             self._d = ops.metric_residual(self._fp, self.target, self._q, reduce=not fista,
                                           colour=self._colour)
+        if pending is not None and fista:
+            self._resume_momentum(*pending)
         if fista:
             self._run_fista(iterations, tol, info)
         else:
