@@ -28,21 +28,24 @@ def test_moving_frames_after_a_still_converge_like_a_cold_start():
 def test_a_frame_shown_from_its_start_alone_pays_no_gradient():
     """A moving frame compensated with 0 iterations right after one that iterated (the previous
     correction carried along the motion, what a slow device's catch-up shows) computes no
-    gradient: the momentum's gradient at the new start is the first iteration's work, which a
-    frame that iterates does."""
+    gradient and carries no momentum (FISTA's previous iterate): they are the first iteration's
+    work, which a frame that iterates does."""
     procam = rd.sim.VirtualProCam("cubicle", projector_size=(96, 72), camera_size=(160, 120))
     calib = oracle_calibration(procam)
     clip = make_clip((96, 72), (Segment("pan", "pan", 7, 3.0),))
     comp = rd.Compensator(calib, backend="numpy")
     ops = comp._solver.ops
-    calls = []
-    gradient = ops.gradient
+    calls, momentum = [], []
+    gradient, carry = ops.gradient, ops.carry
     ops.gradient = lambda *a, **k: (calls.append(1), gradient(*a, **k))[1]
+    ops.carry = lambda *a, **k: (momentum.append(k.get("src2") is not None), carry(*a, **k))[1]
     for i, (_, image) in enumerate(clip):
         before = len(calls)
+        momentum.clear()
         its = 0 if i % 3 == 2 else 2                      # 2, 2, 0, 2, 2, 0, 2
         comp.compensate(image, iterations=its)
         if i == 0:
             continue
         assert comp.last_info["start"] == "motion", comp.last_info
         assert (len(calls) > before) == (its > 0), (i, its, len(calls) - before)
+        assert any(momentum) == (its > 0 and i % 3 != 0), (i, its, momentum)

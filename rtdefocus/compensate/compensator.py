@@ -433,7 +433,7 @@ class Compensator:
         s = self._solver
         ops = s.ops
         t0 = time.perf_counter()
-        start = self._start_solve(warped, lo, scale, warm_start)
+        start = self._start_solve(warped, lo, scale, warm_start, iterate=iters > 0)
         ops.finish()
         flat_info = self._last_flat
         t1 = time.perf_counter()
@@ -448,8 +448,10 @@ class Compensator:
             info.update(flat_info)
         return out, info
 
-    def _start_solve(self, warped: np.ndarray, lo: float, scale: float, warm_start: bool) -> str:
-        """Load the frame's target and choose the solver's start point.
+    def _start_solve(self, warped: np.ndarray, lo: float, scale: float, warm_start: bool,
+                     iterate: bool = True) -> str:
+        """Load the frame's target and choose the solver's start point (``iterate`` False: the
+        frame is shown from its start alone, which needs no momentum).
 
         Returns how the solve starts: ``"still"`` (the same frame again: the solve continues),
         ``"motion"`` (the previous correction moved along the motion), ``"cold"`` (from the
@@ -505,7 +507,7 @@ class Compensator:
             s.start_from_target()
             return "cut"
         ops.set_motion(motion.map_xy, motion.valid)
-        return "motion" if s.start_from_motion(d_cold) else "cold"
+        return "motion" if s.start_from_motion(d_cold, momentum=iterate) else "cold"
 
 
 def _check_args(calib, *, method, solver, backend, iterations, tol, weights, warp_backend,

@@ -379,25 +379,26 @@ class Solver:
         # those halvings stalled a video's solve (the step 4000x too small after a still).
         self.L = self._L_estimate
 
-    def start_from_motion(self, d_cold: float | None = None) -> bool:
+    def start_from_motion(self, d_cold: float | None = None, momentum: bool = True) -> bool:
         """Start from the previous frame's correction moved along the motion (on the backend,
         no host round trip): ``P = clamp(T + B(P − T_prev))`` where the motion is valid, the
         cold start ``clamp(T)`` elsewhere; B is the motion set by ``ops.set_motion``. Kept only
         when it is at least as close as the cold start (:meth:`keep_better_than_cold`); then
         FISTA's previous iterate and gradient move the same way (``P_prev`` here, ``G_prev``
-        with the gradient at the new P in :meth:`run`'s first iteration: a frame shown from its
-        start alone skips both and drops the momentum), with the momentum dropped pixel by
-        pixel where the motion is invalid (``P_prev = P``, ``G_prev = G``: a plain step
-        there). Call after :meth:`begin_frame` and the new target (``d_cold``: from
-        :meth:`cold_distance` on that target, see :meth:`keep_better_than_cold`).
+        with the gradient at the new P in :meth:`run`'s first iteration), with the momentum
+        dropped pixel by pixel where the motion is invalid (``P_prev = P``, ``G_prev = G``: a
+        plain step there). ``momentum`` False (a frame shown from its start alone, 0
+        iterations) carries none: the next frame starts its iterations plain. Call after
+        :meth:`begin_frame` and the new target (``d_cold``: from :meth:`cold_distance` on that
+        target, see :meth:`keep_better_than_cold`).
 
         Returns
         -------
         bool : whether the warm start was kept (else the solve starts cold).
         """
         ops = self.ops
-        momentum, theta, beta = self._carried
-        momentum = momentum and self.solver == "fista"
+        carried, theta, beta = self._carried
+        momentum = momentum and carried and self.solver == "fista"
         # P into _s (_P_alt may hold the cold start of cold_distance) and, in the same pass,
         # P_prev into _fs (where the motion is invalid both become the cold start: P_prev = P);
         # the second field costs ~half a carry, and is wasted only when the cold start wins.
